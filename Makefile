@@ -1,0 +1,40 @@
+# armvision: `make demo` and `make test` are all a new user needs; both set themselves up.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+# Debian packages: libusb for pyrealsense2, EGL/GL and Mesa's software renderer for offscreen MuJoCo.
+APT_PACKAGES := libusb-1.0-0 libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri
+STAMP  := $(VENV)/.armvision-installed
+
+export MUJOCO_GL ?= egl
+
+.PHONY: setup system-packages demo test bench lint clean
+
+setup: system-packages $(STAMP)
+
+system-packages:
+	@sh scripts/system-packages.sh $(APT_PACKAGES)
+
+# Reinstalled only when pyproject.toml changes, so a second `make setup` is instant.
+$(STAMP): pyproject.toml
+	@sh scripts/check-python.sh $(PYTHON)
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@touch $(STAMP)
+
+demo: setup
+	$(BIN)/armvision info
+
+test: setup
+	$(BIN)/python -m pytest
+
+bench: setup
+	$(BIN)/python benchmarks/run_all.py
+
+lint: setup
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+
+clean:
+	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache

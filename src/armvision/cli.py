@@ -1,0 +1,221 @@
+"""The ``armvision`` command.
+
+Every subcommand loads the configuration the same way (``--config``, ``--set``); an
+:class:`ArmvisionError` is printed as one line that says what to do, with exit status 2, never
+a traceback (``--debug`` shows it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+
+from armvision import __version__
+from armvision.config import Config, config_to_toml, find_config_file, load_config
+from armvision.errors import ArmvisionError
+
+log = logging.getLogger("armvision")
+
+
+# --------------------------------------------------------------------------- armvision info
+
+
+@dataclass(frozen=True)
+class BackendStatus:
+    """Whether one backend can be used on this machine, and why (not)."""
+
+    name: str
+    usable: bool
+    detail: str
+
+
+# Rendering is probed in a child process: a broken GL stack can abort the interpreter, and
+# MUJOCO_GL is read once, at import.
+_MUJOCO_PROBE = """
+import mujoco
+model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size="0.1"/></worldbody></mujoco>')
+renderer = mujoco.Renderer(model, 48, 64)
+data = mujoco.MjData(model)
+mujoco.mj_forward(model, data)
+renderer.update_scene(data)
+image = renderer.render()
+renderer.close()
+print(mujoco.__version__, image.shape[1], image.shape[0])
+"""
+
+
+def check_mujoco(timeout_s: float = 60.0) -> BackendStatus:
+    """Can MuJoCo render offscreen here (the simulated camera needs it)?"""
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    try:
+        result = subprocess.run(
+            [sys.executable, "-c", _MUJOCO_PROBE],
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            env=env,
+        )
+    except subprocess.TimeoutExpired:
+        return BackendStatus("mujoco", False, f"rendering test hung for {timeout_s:.0f} s")
+    if result.returncode != 0:
+        lines = (result.stderr or result.stdout).strip().splitlines()
+        why = lines[-1] if lines else f"exit status {result.returncode}"
+        if "No module named 'mujoco'" in why:
+            return BackendStatus("mujoco", False, "not installed: pip install mujoco")
+        return BackendStatus(
+            "mujoco",
+            False,
+            f"cannot render with MUJOCO_GL={env['MUJOCO_GL']} ({why}); install libegl1 "
+            "libgl1-mesa-dri (make setup does) or try MUJOCO_GL=osmesa",
+        )
+    version = result.stdout.split()[0]
+    return BackendStatus(
+        "mujoco",
+        True,
+        f"MuJoCo {version}, offscreen rendering with MUJOCO_GL={env['MUJOCO_GL']} works",
+    )
+
+
+def check_realsense() -> BackendStatus:
+    """Is pyrealsense2 installed, and which cameras are connected?"""
+    try:
+        import pyrealsense2 as rs
+    except ImportError:
+        return BackendStatus(
+            "realsense", False, "pyrealsense2 not installed: pip install 'armvision[realsense]'"
+        )
+    version = getattr(rs, "__version__", "?")
+    try:
+        devices = list(rs.context().query_devices())
+    except RuntimeError as exc:
+        return BackendStatus(
+            "realsense", False, f"pyrealsense2 {version}: cannot list devices ({exc})"
+        )
+    if not devices:
+        return BackendStatus(
+            "realsense",
+            False,
+            f"pyrealsense2 {version} installed; no RealSense camera connected"
+            " (plug it into a USB 3 port)",
+        )
+    found = []
+    for dev in devices:
+        info = {
+            key: dev.get_info(getattr(rs.camera_info, key))
+            if dev.supports(getattr(rs.camera_info, key))
+            else "?"
+            for key in ("name", "serial_number", "usb_type_descriptor")
+        }
+        found.append(
+            f"{info['name']} serial {info['serial_number']} on USB {info['usb_type_descriptor']}"
+        )
+    return BackendStatus("realsense", True, f"pyrealsense2 {version}: " + "; ".join(found))
+
+
+def check_interbotix() -> BackendStatus:
+    """Are the Interbotix ROS 2 Python modules importable (needed for the real arm)?"""
+    from armvision.robot.interbotix import interbotix_available
+
+    usable, detail = interbotix_available()
+    return BackendStatus("interbotix", usable, detail)
+
+
+def cmd_info(args: argparse.Namespace, config: Config) -> int:
+    statuses = [check_mujoco(), check_realsense(), check_interbotix()]
+    config_file = find_config_file(args.config)
+    report = {
+        "version": __version__,
+        "python": platform.python_version(),
+        "platform": f"{platform.system()} {platform.machine()}",
+        "config": str(config_file) if config_file else "defaults",
+        "backends": [asdict(s) for s in statuses],
+    }
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"armvision {__version__} (Python {report['python']}, {report['platform']})")
+    print(f"config: {report['config']}")
+    width = max(len(s.name) for s in statuses)
+    for s in statuses:
+        print(f"  {s.name:<{width}}  {'yes' if s.usable else 'no ':<3}  {s.detail}")
+    return 0
+
+
+# --------------------------------------------------------------------------- armvision config
+
+
+def cmd_config(args: argparse.Namespace, config: Config) -> int:
+    print(config_to_toml(config), end="")
+    return 0
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="armvision",
+        description="Vision-guided manipulation with an Interbotix ViperX-300s and a RealSense "
+        "D435i, or their MuJoCo simulation.",
+    )
+    parser.add_argument("--version", action="version", version=f"armvision {__version__}")
+    parser.add_argument(
+        "--config",
+        metavar="PATH",
+        help="TOML configuration (default: $ARMVISION_CONFIG, ./armvision.toml)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        help="override one setting, e.g. --set robot.moving_time=1.5 (repeatable)",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    info = sub.add_parser("info", help="version and which backends work on this machine")
+    info.add_argument("--json", action="store_true", help="machine-readable output")
+    info.set_defaults(func=cmd_info)
+
+    show = sub.add_parser("config", help="print the effective configuration as TOML")
+    show.set_defaults(func=cmd_config)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    func: Callable[[argparse.Namespace, Config], int] | None = getattr(args, "func", None)
+    if func is None:
+        parser.print_help()
+        return 0
+    try:
+        config = load_config(args.config, args.overrides)
+        return func(args, config)
+    except ArmvisionError as exc:
+        if args.debug:
+            raise
+        print(f"armvision: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("armvision: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

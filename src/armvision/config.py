@@ -1,0 +1,259 @@
+"""Configuration: one tree of frozen dataclasses with the paper's defaults.
+
+Loaded from TOML and overridable from the command line (``--set robot.moving_time=1.5``).
+Validation is pydantic's (types, ranges); every problem becomes a :class:`ConfigError` that names
+the file and the dotted key, so ``tag.sise = 0.04`` fails with "unknown key 'tag.sise'" instead of
+being silently ignored.
+
+Where the file comes from, first match wins: ``--config PATH``, ``$ARMVISION_CONFIG``,
+``./armvision.toml``, else the defaults. ``armvision config`` prints the effective tree as TOML.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import typing
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tomli_w
+from pydantic import (
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
+from pydantic.dataclasses import dataclass
+
+from armvision.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+_STRICT = ConfigDict(extra="forbid", frozen=True)
+PositiveFloat = Annotated[float, Field(gt=0.0)]
+Vector3 = tuple[float, float, float]
+# RealSense serials are digits; accept them unquoted in TOML and on the command line.
+SerialNumber = Annotated[str | None, BeforeValidator(lambda v: str(v) if isinstance(v, int) else v)]
+
+ENV_VAR = "ARMVISION_CONFIG"
+LOCAL_FILE = "armvision.toml"
+
+
+@dataclass(config=_STRICT)
+class RobotConfig:
+    """The arm. Timing defaults are Interbotix's (InterbotixManipulatorXS)."""
+
+    model: Literal["vx300s"] = "vx300s"
+    moving_time: PositiveFloat = 2.0
+    accel_time: Annotated[float, Field(ge=0.0)] = 0.3
+    gripper_pressure: Annotated[float, Field(ge=0.0, le=1.0)] = 0.5
+    group_name: str = "arm"
+    gripper_name: str = "gripper"
+
+    @field_validator("accel_time")
+    @classmethod
+    def _accel_within_move(cls, accel_time: float, info: ValidationInfo) -> float:
+        moving_time = info.data.get("moving_time")
+        if moving_time is not None and accel_time > moving_time / 2.0:
+            raise ValueError(f"must be at most half of moving_time ({moving_time} s)")
+        return accel_time
+
+
+@dataclass(config=_STRICT)
+class TagConfig:
+    """The AprilTag on the gripper: the paper's tag36h11 id 96, 10 cm behind and 3 cm above ee."""
+
+    family: Literal["tag36h11", "tag25h9", "tag16h5", "tagStandard41h12"] = "tag36h11"
+    id: Annotated[int, Field(ge=0)] = 96
+    size: PositiveFloat = 0.04  # edge of the black square, metres (pupil-apriltags' tag_size)
+    offset_ee: Vector3 = (-0.1, 0.0, 0.03)  # tag centre in the ee frame, metres
+
+
+@dataclass(config=_STRICT)
+class CameraConfig:
+    """The RealSense D435i streams: colour and aligned depth at 640x480, 30 FPS."""
+
+    width: Annotated[int, Field(gt=0)] = 640
+    height: Annotated[int, Field(gt=0)] = 480
+    fps: Literal[6, 15, 30, 60] = 30
+    serial: SerialNumber = None  # choose one of several cameras; None = the first found
+    bag: str | None = None  # play back a recording instead of a live camera
+
+
+@dataclass(config=_STRICT)
+class SimConfig:
+    """The simulated workspace (MuJoCo): camera placement, scene, sensor noise and physics.
+
+    The camera stands in front of the robot like the paper's set-up: ``camera_distance``
+    horizontally from the base axis at ``camera_azimuth_deg`` (0 = on the base's +x axis),
+    ``camera_height`` above the table top, facing the base and pitched down by
+    ``camera_pitch_deg``. With ``randomize_camera`` every seed adds a uniform offset within
+    the ``*_jitter`` ranges (plus, minus).
+    """
+
+    camera_distance: Annotated[float, Field(gt=0.3, le=3.0)] = 1.0
+    camera_azimuth_deg: Annotated[float, Field(ge=-180.0, le=180.0)] = 0.0
+    camera_height: Annotated[float, Field(ge=0.0, le=2.0)] = 0.45
+    camera_pitch_deg: Annotated[float, Field(ge=0.0, le=89.0)] = 30.0
+    randomize_camera: bool = False
+    camera_distance_jitter: Annotated[float, Field(ge=0.0)] = 0.1
+    camera_azimuth_jitter_deg: Annotated[float, Field(ge=0.0)] = 10.0
+    camera_height_jitter: Annotated[float, Field(ge=0.0)] = 0.05
+    camera_pitch_jitter_deg: Annotated[float, Field(ge=0.0)] = 5.0
+    min_objects: Annotated[int, Field(ge=0, le=4)] = 1
+    max_objects: Annotated[int, Field(ge=0, le=4)] = 4
+    loose_tags: Annotated[int, Field(ge=0, le=4)] = 0  # extra tags lying on the table
+    depth_noise: bool = True  # Intel's RMS model, quantisation, edge and range dropouts
+    depth_min: PositiveFloat = 0.28  # D435 minimum depth at 640x480, metres
+    depth_max: PositiveFloat = 3.0
+    encoder_noise_deg: Annotated[float, Field(ge=0.0)] = 0.1  # per reading, 1 sigma
+    encoder_bias_deg: Annotated[float, Field(ge=0.0)] = 0.3  # per joint and seed, at most
+    timestep: Annotated[float, Field(gt=0.0, le=0.01)] = 0.002  # physics step, seconds
+
+    @field_validator("max_objects")
+    @classmethod
+    def _max_at_least_min(cls, max_objects: int, info: ValidationInfo) -> int:
+        min_objects = info.data.get("min_objects")
+        if min_objects is not None and max_objects < min_objects:
+            raise ValueError(f"must be at least min_objects ({min_objects})")
+        return max_objects
+
+
+@dataclass(config=_STRICT)
+class Config:
+    """The whole tree; every section has the paper's defaults."""
+
+    robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
+    tag: TagConfig = dataclasses.field(default_factory=TagConfig)
+    camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
+    sim: SimConfig = dataclasses.field(default_factory=SimConfig)
+
+
+_ADAPTER = TypeAdapter(Config)
+
+
+def _parse_value(text: str) -> Any:
+    """An override value parsed as TOML (numbers, booleans, [lists]); bare words are strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def known_keys(cls: type | None = None, prefix: str = "") -> list[str]:
+    """Every dotted key the configuration accepts, e.g. ``robot.moving_time``."""
+    cls = Config if cls is None else cls
+    hints = typing.get_type_hints(cls)
+    keys: list[str] = []
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            keys += known_keys(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            keys.append(prefix + f.name)
+    return keys
+
+
+def apply_override(data: dict[str, Any], assignment: str) -> None:
+    """Apply one ``section.key=value`` assignment to a raw config dict, in place."""
+    key, sep, value = assignment.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"override {assignment!r} must look like section.key=value")
+    *parents, leaf = key.split(".")
+    node = data
+    for part in parents:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"override {assignment!r}: {part!r} is a value, not a section")
+        node = child
+    node[leaf] = _parse_value(value.strip())
+
+
+def _describe(error: dict[str, Any]) -> str:
+    key = ".".join(str(part) for part in error["loc"]) or "(top level)"
+    if error["type"] in ("unexpected_keyword_argument", "extra_forbidden"):
+        return f"unknown key '{key}'"
+    if error["type"] == "missing_argument":
+        return f"'{key}' is required"
+    return f"'{key}': {error['msg']} (got {error.get('input')!r})"
+
+
+def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Config:
+    """Validate a raw dict (as read from TOML) into a :class:`Config`, or raise ConfigError."""
+    try:
+        return _ADAPTER.validate_python(data)
+    except ValidationError as exc:
+        errors = exc.errors()
+        message = f"{source}: " + "; ".join(_describe(e) for e in errors)
+        if any(e["type"] in ("unexpected_keyword_argument", "extra_forbidden") for e in errors):
+            message += f". Known keys: {', '.join(known_keys())}"
+        raise ConfigError(message) from None
+
+
+def find_config_file(explicit: str | os.PathLike[str] | None = None) -> Path | None:
+    """The config file to use: explicit path, then $ARMVISION_CONFIG, then ./armvision.toml."""
+    if explicit is not None:
+        return Path(explicit)
+    if os.environ.get(ENV_VAR):
+        return Path(os.environ[ENV_VAR])
+    local = Path(LOCAL_FILE)
+    return local if local.is_file() else None
+
+
+def load_config(
+    path: str | os.PathLike[str] | None = None, overrides: list[str] | tuple[str, ...] = ()
+) -> Config:
+    """Load the configuration: defaults, then the TOML file (if any), then ``overrides``."""
+    file = find_config_file(path)
+    data: dict[str, Any] = {}
+    source = "defaults"
+    if file is not None:
+        source = str(file)
+        try:
+            with open(file, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise ConfigError(
+                f"config file {file} does not exist (write one with `armvision config > {file}`)"
+            ) from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{file} is not valid TOML: {exc}") from None
+        except OSError as exc:
+            raise ConfigError(f"cannot read config file {file}: {exc.strerror}") from None
+    for assignment in overrides:
+        apply_override(data, assignment)
+    if overrides:
+        source += " with --set " + " ".join(overrides)
+    return config_from_dict(data, source)
+
+
+def config_to_dict(config: Config) -> dict[str, Any]:
+    """Plain nested dict of ``config`` (tuples as lists), for JSON and TOML output."""
+
+    def plain(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        if isinstance(value, tuple):
+            return [plain(v) for v in value]
+        return value
+
+    return plain(dataclasses.asdict(config))
+
+
+def config_to_toml(config: Config) -> str:
+    """``config`` as TOML that :func:`load_config` reads back; unset optional keys are omitted."""
+
+    def drop_none(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: drop_none(v) for k, v in value.items() if v is not None}
+        return value
+
+    return tomli_w.dumps(drop_none(config_to_dict(config)))

@@ -1,0 +1,65 @@
+"""The armvision command as a user runs it: help, info, config, and one-line errors."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+
+from armvision.config import load_config
+
+ARMVISION = [sys.executable, "-m", "armvision.cli"]
+
+
+def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k != "ARMVISION_CONFIG"}
+    return subprocess.run(
+        [*ARMVISION, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=120
+    )
+
+
+def test_help_lists_the_commands():
+    result = run("--help")
+    assert result.returncode == 0
+    assert "info" in result.stdout and "config" in result.stdout
+
+
+def test_info_reports_every_backend_with_a_reason(tmp_path):
+    result = run("info", "--json", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    from armvision import __version__
+
+    assert report["version"] == __version__
+    backends = {b["name"]: b for b in report["backends"]}
+    assert set(backends) == {"mujoco", "realsense", "interbotix"}
+    for backend in backends.values():
+        assert backend["detail"]  # a one-line reason either way
+    # make setup installs MuJoCo and the EGL libraries, so rendering must work.
+    assert backends["mujoco"]["usable"], backends["mujoco"]["detail"]
+    has_ros = all(importlib.util.find_spec(m) for m in ("rclpy", "interbotix_xs_modules"))
+    assert backends["interbotix"]["usable"] == has_ros
+    if not has_ros:
+        assert "source /opt/ros/humble/setup.bash" in backends["interbotix"]["detail"]
+    text = run("info", cwd=tmp_path)
+    assert text.returncode == 0 and "mujoco" in text.stdout
+
+
+def test_config_prints_loadable_toml_with_overrides(tmp_path):
+    result = run("--set", "tag.id=12", "--set", "robot.moving_time=1.25", "config", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    saved = tmp_path / "armvision.toml"
+    saved.write_text(result.stdout)
+    config = load_config(saved)
+    assert config.tag.id == 12 and config.robot.moving_time == 1.25
+
+
+def test_errors_are_one_line_without_traceback(tmp_path):
+    result = run("--set", "tag.idd=3", "info", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "unknown key 'tag.idd'" in result.stderr
+    assert "Traceback" not in result.stderr
+    missing = run("--config", str(tmp_path / "nope.toml"), "config", cwd=tmp_path)
+    assert missing.returncode == 2 and "nope.toml does not exist" in missing.stderr
