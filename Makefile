@@ -23,8 +23,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
+# Until the tasks land: show what works here, then build a scene, move the arm home, snapshot it.
 demo: setup
 	$(BIN)/armvision info
+	$(BIN)/armvision sim snapshot --seed 0 --out out/demo
 
 test: setup
 	$(BIN)/python -m pytest
