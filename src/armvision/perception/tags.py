@@ -1,0 +1,349 @@
+"""AprilTag detection and 6-D pose, refined with the depth image.
+
+Detection is pupil-apriltags (the AprilTag 3 library). The pose is not pupil's: we solve PnP
+with OpenCV's IPPE_SQUARE, which returns *both* solutions of the planar ambiguity (Collins &
+Bartoli 2014), on corners undistorted with the camera's own (librealsense) distortion model.
+Monocular PnP is weakest along the viewing axis and near-frontal tags flip between the two
+solutions, so with depth we fit a plane to the depth pixels inside the tag and
+
+* keep the PnP solution whose normal agrees with the measured plane (rejecting the flip),
+* tilt its normal toward the measured one, each weighted by its covariance (PnP is sharper
+  on large, close or oblique tags; depth on small frontal ones), keeping PnP's in-plane
+  rotation, and
+* place the centre where the ray through the tag's centre pixel meets the measured plane.
+
+Frames: ``T_cam_tag`` in the AprilTag library's convention (origin at the tag centre, z into
+the tag), camera optical frame x right, y down, z forward.
+
+Two pupil-apriltags quirks handled here: it registers only the first family of a
+space-separated list (so one detector per family), and it truncates ``decode_sharpening`` to an
+integer when configuring the C detector (so we write the float back into the C struct).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
+from armvision.errors import PerceptionError
+from armvision.geometry import make_T, rotation_between
+
+Array = NDArray[np.float64]
+
+FAMILIES = (
+    "tag36h11",
+    "tag25h9",
+    "tag16h5",
+    "tagCircle21h7",
+    "tagCircle49h12",
+    "tagCustom48h12",
+    "tagStandard41h12",
+    "tagStandard52h13",
+)
+
+
+@dataclass(frozen=True, eq=False)
+class TagDetection:
+    """One detected tag.
+
+    ``corners`` (4, 2) pixels in AprilTag order (object points (-s, s), (s, s), (s, -s),
+    (-s, -s) for half-size s); ``center`` (2,) pixel of the tag centre; ``pose_error`` the RMS
+    reprojection error of the corners under ``T_cam_tag``, pixels; ``depth_refined`` whether
+    the depth image corrected the pose (``plane_rms_m`` is then the plane fit's residual);
+    ``flip_corrected`` whether depth chose PnP's second solution over its first.
+    """
+
+    id: int
+    family: str
+    corners: Array
+    center: Array
+    T_cam_tag: Array
+    decision_margin: float
+    hamming: int
+    pose_error: float
+    depth_refined: bool = False
+    plane_rms_m: float = float("nan")
+    flip_corrected: bool = False
+
+
+def tag_object_points(tag_size: float) -> Array:
+    """Corner coordinates in the tag frame, in the order pupil-apriltags reports corners."""
+    s = tag_size / 2.0
+    return np.array([[-s, s, 0.0], [s, s, 0.0], [s, -s, 0.0], [-s, -s, 0.0]])
+
+
+def _normalised(intr: Intrinsics, uv: Array) -> Array:
+    """Undistorted normalised image coordinates (x/z, y/z) of pixels, any librealsense model."""
+    return deproject(intr, uv, np.ones(len(uv)))[:, :2]
+
+
+def _ippe_solutions(object_points: Array, xy: Array) -> list[tuple[Array, float]]:
+    """Both IPPE_SQUARE poses (T_cam_tag) with their reprojection RMS in normalised units."""
+    ok, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+        np.ascontiguousarray(object_points).reshape(-1, 1, 3),
+        np.ascontiguousarray(xy).reshape(-1, 1, 2),
+        np.eye(3),
+        None,
+        flags=cv2.SOLVEPNP_IPPE_SQUARE,
+    )
+    if not ok:
+        return []
+    out = []
+    for rvec, tvec, err in zip(rvecs, tvecs, np.ravel(errors)):
+        out.append((make_T(cv2.Rodrigues(rvec)[0], np.ravel(tvec)), float(err)))
+    return out
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """A plane n . p = d through depth points; n has unit length and points away from the camera."""
+
+    normal: Array
+    offset: float
+    rms: float
+    count: int
+
+
+def fit_plane(points: Array, inlier_m: float = 0.004) -> PlaneFit | None:
+    """Least-squares plane (SVD of centred points), refitted once without outliers.
+
+    Outliers are points farther than max(3 x 1.4826 x MAD, ``inlier_m``) from the first fit:
+    depth speckle and the edge of the tag plate.
+    """
+    if len(points) < 3:
+        return None
+    keep = np.ones(len(points), dtype=bool)
+    for _ in range(2):
+        centroid = points[keep].mean(axis=0)
+        _, _, vt = np.linalg.svd(points[keep] - centroid, full_matrices=False)
+        normal = vt[2]
+        residual = (points - centroid) @ normal
+        mad = np.median(np.abs(residual[keep] - np.median(residual[keep])))
+        keep = np.abs(residual) <= max(3.0 * 1.4826 * mad, inlier_m)
+        if keep.sum() < 3:
+            return None
+    if normal @ centroid < 0.0:
+        normal = -normal
+    rms = float(np.sqrt(np.mean(((points[keep] - centroid) @ normal) ** 2)))
+    return PlaneFit(normal, float(normal @ centroid), rms, int(keep.sum()))
+
+
+def _tag_depth_points(intr: Intrinsics, depth: NDArray, corners: Array, shrink: float) -> Array:
+    """3-D points of the valid depth pixels inside the tag quad shrunk toward its centre."""
+    centre = corners.mean(axis=0)
+    quad = centre + shrink * (corners - centre)
+    x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(quad.max(axis=0)).astype(int)
+    h, w = depth.shape
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
+    if x1 <= x0 or y1 <= y0:
+        return np.empty((0, 3))
+    mask = np.zeros((y1 - y0 + 1, x1 - x0 + 1), dtype=np.uint8)
+    cv2.fillConvexPoly(mask, np.round(quad - [x0, y0]).astype(np.int32), 1)
+    patch = depth[y0 : y1 + 1, x0 : x1 + 1]
+    rows, cols = np.nonzero(mask.astype(bool) & (patch > 0))
+    if len(rows) == 0:
+        return np.empty((0, 3))
+    uv = np.column_stack([cols + x0, rows + y0]).astype(float)
+    return deproject(intr, uv, patch[rows, cols].astype(float))
+
+
+class TagDetector:
+    """Find AprilTags of one family and estimate ``T_cam_tag`` for each.
+
+    ``ids``: keep only these ids (None keeps all). ``tag_size``: edge of the black square, m.
+    ``nthreads``, ``quad_decimate``, ``quad_sigma``, ``refine_edges``, ``decode_sharpening``:
+    pupil-apriltags' detector settings (its defaults, except decimation 1.0: full resolution
+    costs ~2x time at 640x480 but keeps small, distant tags). ``max_hamming``: corrected bits
+    accepted (0-2; more means more false positives). ``refine_with_depth``: use the depth
+    image as described in the module docstring; ``min_depth_points`` valid depth pixels are
+    needed inside the tag, and ``max_normal_disagreement_deg`` bounds how far the depth plane
+    may be from the chosen PnP solution before the depth is distrusted. ``corner_sigma_px``:
+    the corner noise used to weigh PnP's tag normal against the depth plane's; None estimates
+    it per tag from the PnP residual (sigma^2 = SSR / (8 - 6), at least 0.05 px).
+    """
+
+    def __init__(
+        self,
+        family: str = "tag36h11",
+        ids: Iterable[int] | None = None,
+        tag_size: float = 0.04,
+        nthreads: int = 2,
+        quad_decimate: float = 1.0,
+        quad_sigma: float = 0.0,
+        refine_edges: bool = True,
+        decode_sharpening: float = 0.25,
+        max_hamming: int = 1,
+        refine_with_depth: bool = True,
+        min_depth_points: int = 30,
+        max_normal_disagreement_deg: float = 30.0,
+        corner_sigma_px: float | None = None,
+    ) -> None:
+        if family not in FAMILIES:
+            raise PerceptionError(f"unknown AprilTag family {family!r}; use one of {FAMILIES}")
+        if not tag_size > 0:
+            raise PerceptionError(
+                f"tag_size must be the black square's edge in metres, got {tag_size}"
+            )
+        try:
+            from pupil_apriltags import Detector
+        except ImportError as exc:  # pragma: no cover - a dependency of armvision
+            raise PerceptionError(
+                f"pupil-apriltags is not installed ({exc}): pip install pupil-apriltags"
+            ) from None
+        self.family = family
+        self.ids = None if ids is None else frozenset(int(i) for i in ids)
+        self.tag_size = float(tag_size)
+        self.max_hamming = int(max_hamming)
+        self.refine_with_depth = refine_with_depth
+        self.min_depth_points = int(min_depth_points)
+        self.max_normal_disagreement = np.radians(max_normal_disagreement_deg)
+        self.corner_sigma_px = None if corner_sigma_px is None else float(corner_sigma_px)
+        self._detector = Detector(
+            families=family,
+            nthreads=int(nthreads),
+            quad_decimate=float(quad_decimate),
+            quad_sigma=float(quad_sigma),
+            refine_edges=int(bool(refine_edges)),
+            decode_sharpening=float(decode_sharpening),
+        )
+        # pupil-apriltags stores int(decode_sharpening); put the real value in the C struct.
+        self._detector.tag_detector_ptr.contents.decode_sharpening = float(decode_sharpening)
+        self._object_points = tag_object_points(self.tag_size)
+
+    @classmethod
+    def from_config(cls, tag_config, **kwargs) -> TagDetector:
+        """A detector for the configured gripper tag (``config.tag``), other settings as given."""
+        kwargs.setdefault("ids", None)
+        return cls(family=tag_config.family, tag_size=tag_config.size, **kwargs)
+
+    def detect(self, frame: RGBDFrame) -> list[TagDetection]:
+        """Tags in an RGB-D frame; depth refines the poses when ``refine_with_depth``."""
+        return self.detect_image(frame.color, frame.intrinsics, frame.depth)
+
+    def detect_image(
+        self, image: ArrayLike, intrinsics: Intrinsics, depth: ArrayLike | None = None
+    ) -> list[TagDetection]:
+        """Tags in a colour (H, W, 3 RGB) or grey (H, W) uint8 image, optionally with depth (m)."""
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or image.ndim not in (2, 3):
+            raise PerceptionError(
+                f"expected an 8-bit grey or RGB image, got {image.dtype} {image.shape}"
+            )
+        gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        gray = np.ascontiguousarray(gray)
+        if depth is not None:
+            depth = np.asarray(depth)
+            if depth.shape != gray.shape:
+                raise PerceptionError(
+                    f"depth {depth.shape} does not match colour {gray.shape}: align depth to colour"
+                )
+        detections = []
+        for raw in self._detector.detect(gray):
+            if raw.hamming > self.max_hamming or (
+                self.ids is not None and raw.tag_id not in self.ids
+            ):
+                continue
+            found = self._pose(raw, intrinsics, depth)
+            if found is not None:
+                detections.append(found)
+        return detections
+
+    def _pose(self, raw, intr: Intrinsics, depth: NDArray | None) -> TagDetection | None:
+        corners = np.asarray(raw.corners, dtype=float)
+        xy = _normalised(intr, corners)
+        solutions = _ippe_solutions(self._object_points, xy)
+        if not solutions:
+            return None
+        solutions.sort(key=lambda s: s[1])
+        T_cam_tag = solutions[0][0]
+        refined, flipped, plane_rms = False, False, float("nan")
+
+        if depth is not None and self.refine_with_depth:
+            points = _tag_depth_points(intr, depth, corners, shrink=0.8)
+            plane = fit_plane(points) if len(points) >= self.min_depth_points else None
+            if plane is not None:
+                # The PnP solution whose tag normal (z, into the tag) agrees with the plane.
+                angles = [
+                    np.arccos(np.clip(T[:3, 2] @ plane.normal, -1.0, 1.0)) for T, _ in solutions
+                ]
+                best = int(np.argmin(angles))
+                if angles[best] <= self.max_normal_disagreement:
+                    flipped = best != 0
+                    T_pnp = solutions[best][0]
+                    normal = self._fused_normal(T_pnp, corners, intr, points, plane)
+                    R = rotation_between(T_pnp[:3, 2], normal) @ T_pnp[:3, :3]
+                    ray = np.append(_normalised(intr, np.asarray(raw.center, float)[None])[0], 1.0)
+                    p_centre = ray * plane.offset / (plane.normal @ ray)
+                    T_cam_tag = make_T(R, p_centre)
+                    refined, plane_rms = True, plane.rms
+
+        return TagDetection(
+            id=int(raw.tag_id),
+            family=self.family,
+            corners=corners,
+            center=np.asarray(raw.center, dtype=float),
+            T_cam_tag=T_cam_tag,
+            decision_margin=float(raw.decision_margin),
+            hamming=int(raw.hamming),
+            pose_error=self._reprojection_rms(T_cam_tag, corners, intr),
+            depth_refined=refined,
+            plane_rms_m=plane_rms,
+            flip_corrected=flipped,
+        )
+
+    def _fused_normal(
+        self, T_pnp: Array, corners: Array, intr: Intrinsics, points: Array, plane: PlaneFit
+    ) -> Array:
+        """Tag normal from PnP and the depth plane, each weighted by its covariance.
+
+        PnP: sigma_px^2 (J^T J)^-1 from the corners' reprojection Jacobian (numerical, through
+        the camera's distortion model). Depth: rms^2 (A^T A)^-1 of the plane fit's in-plane
+        spread. Both as 2-D tilts in the tangent plane of the PnP normal; the fused tilt is
+        C_pnp (C_pnp + C_depth)^-1 d, d the depth normal's tilt.
+        """
+        n = T_pnp[:3, 2]
+        a = T_pnp[:3, 0]
+        b = T_pnp[:3, 1]
+        # Reprojection Jacobian w.r.t. a small rotation (camera frame) and translation.
+        J = np.zeros((8, 6))
+        base = project(intr, self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]).ravel()
+        eps = 1e-6
+        for k in range(6):
+            delta = np.zeros(6)
+            delta[k] = eps
+            R = cv2.Rodrigues(delta[:3])[0] @ T_pnp[:3, :3]
+            moved = project(intr, self._object_points @ R.T + T_pnp[:3, 3] + delta[3:]).ravel()
+            J[:, k] = (moved - base) / eps
+        sigma_px = self.corner_sigma_px
+        if sigma_px is None:
+            residual = project(intr, self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]) - corners
+            sigma_px = max(float(np.sqrt(np.sum(residual**2) / 2.0)), 0.05)
+        try:
+            C_pose = sigma_px**2 * np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            return plane.normal
+        # dn = dtheta x n, so the tilt along a is dtheta . (n x a).
+        J_tilt = np.stack([np.cross(n, a), np.cross(n, b)])
+        C_pnp = J_tilt @ C_pose[:3, :3] @ J_tilt.T
+        spread = points - points.mean(axis=0)
+        A = np.column_stack([spread @ a, spread @ b])
+        sigma_r = max(plane.rms, 1e-4)
+        try:
+            C_depth = sigma_r**2 * np.linalg.inv(A.T @ A)
+            gain = C_pnp @ np.linalg.inv(C_pnp + C_depth)
+        except np.linalg.LinAlgError:
+            return n
+        d = np.array([plane.normal @ a, plane.normal @ b])
+        tilt = gain @ d
+        fused = n + tilt[0] * a + tilt[1] * b
+        return fused / np.linalg.norm(fused)
+
+    def _reprojection_rms(self, T_cam_tag: Array, corners: Array, intr: Intrinsics) -> float:
+        p_cam = self._object_points @ T_cam_tag[:3, :3].T + T_cam_tag[:3, 3]
+        return float(np.sqrt(np.mean(np.sum((project(intr, p_cam) - corners) ** 2, axis=1))))
