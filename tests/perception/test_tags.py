@@ -8,16 +8,18 @@ own pose estimate serves as an independent cross-check of the PnP.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
-from pupil_apriltags import Detector
 from scipy.spatial.transform import Rotation
 
 from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.errors import PerceptionError
 from armvision.geometry import make_T, pose_error, rot_x, rot_y
-from armvision.perception.tags import TagDetector
+from armvision.perception.tags import TagDetector, pupil_detector
 from armvision.sim.assets import tag_image
 
 INTR = Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5)
@@ -103,7 +105,7 @@ def test_frontal_tag_pose_matches_truth_and_pupil(detector):
     assert det.pose_error < 0.5  # pixels
     # pupil-apriltags' own pose (orthogonal iteration) agrees: same tag frame convention.
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    pupil = Detector(families="tag36h11").detect(gray, True, INTR.camera_params, TAG_SIZE)[0]
+    pupil = pupil_detector(families="tag36h11").detect(gray, True, INTR.camera_params, TAG_SIZE)[0]
     T_pupil = make_T(pupil.pose_R, np.ravel(pupil.pose_t))
     dp, dr = pose_error(det.T_cam_tag, T_pupil)
     assert dp < 0.002 and np.degrees(dr) < 1.0
@@ -170,3 +172,21 @@ def test_settings_and_bad_input_give_clear_errors():
         det.detect_image(np.zeros((10, 10), np.float32), INTR)
     with pytest.raises(PerceptionError, match="align depth to colour"):
         det.detect_image(np.zeros((480, 640), np.uint8), INTR, np.zeros((240, 320), np.float32))
+
+
+def test_detectors_are_freed_without_crashing():
+    """pupil-apriltags frees tag families before the detector using them; ours must not crash."""
+    code = (
+        "import numpy as np\n"
+        "from armvision.perception.tags import TagDetector, pupil_detector\n"
+        "image = np.full((120, 160), 200, np.uint8)\n"
+        "for i in range(40):\n"
+        "    TagDetector().detect_image(image, None)\n"
+        "    pupil_detector(families='tag36h11').detect(image)\n"
+        "print('ok')\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip() == "ok"

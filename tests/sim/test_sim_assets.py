@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
-import pupil_apriltags
 import pytest
 
 from armvision.errors import SimulationError
+from armvision.perception.tags import pupil_detector
 from armvision.sim import assets
 
 
 @pytest.mark.parametrize("tag_id", [0, 96, 586])
 def test_tag_image_decodes_to_its_id_upright(tag_id: int) -> None:
     image = np.pad(assets.tag_image(tag_id), 50, constant_values=255)
-    detector = pupil_apriltags.Detector(families="tag36h11")
+    detector = pupil_detector(families="tag36h11")
     f = 500.0
     (det,) = detector.detect(
         image,

@@ -6,7 +6,6 @@ import math
 
 import cv2
 import numpy as np
-import pupil_apriltags
 import pytest
 
 from armvision.camera.base import Camera
@@ -18,6 +17,7 @@ from armvision.camera.sim import (
 )
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, transform_points
+from armvision.perception.tags import pupil_detector
 from armvision.sim._mujoco import mujoco
 from armvision.sim.world import SimWorld, camera_pose_from_placement
 
@@ -153,7 +153,7 @@ def test_gripper_tag_is_detected_where_the_true_pose_puts_its_corners(
     frame = camera.read()
     gray = cv2.cvtColor(frame.color, cv2.COLOR_RGB2GRAY)
     tag_size = empty_world.config.tag.size
-    detector = pupil_apriltags.Detector(families="tag36h11")
+    detector = pupil_detector(families="tag36h11")
     detections = detector.detect(
         gray,
         estimate_tag_pose=True,

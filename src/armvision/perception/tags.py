@@ -15,15 +15,20 @@ solutions, so with depth we fit a plane to the depth pixels inside the tag and
 Frames: ``T_cam_tag`` in the AprilTag library's convention (origin at the tag centre, z into
 the tag), camera optical frame x right, y down, z forward.
 
-Two pupil-apriltags quirks handled here: it registers only the first family of a
-space-separated list (so one detector per family), and it truncates ``decode_sharpening`` to an
-integer when configuring the C detector (so we write the float back into the C struct).
+Three pupil-apriltags (1.0.4) quirks handled here: it registers only the first family of a
+space-separated list (so one detector per family); it truncates ``decode_sharpening`` to an
+integer when configuring the C detector (so we write the float back into the C struct); and its
+``__del__`` frees the tag families before the detector that still uses them, an intermittent
+segfault (duckietown/lib-dt-apriltags#33 fixed the same code), so :func:`pupil_detector` frees
+them in the right order.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -69,6 +74,44 @@ class TagDetection:
     depth_refined: bool = False
     plane_rms_m: float = float("nan")
     flip_corrected: bool = False
+
+
+def _free_in_order(detector: Any) -> None:
+    """Destroy the C detector first, then its tag families (the reverse of pupil's order)."""
+    ptr = getattr(detector, "tag_detector_ptr", None)
+    if ptr is None:  # never built, or already freed
+        return
+    detector.tag_detector_ptr = None
+    libc = detector.libc
+    libc.apriltag_detector_destroy.restype = None
+    libc.apriltag_detector_destroy(ptr)
+    for family, handle in detector.tag_families.items():
+        destroy = getattr(libc, f"{family}_destroy")
+        destroy.restype = None
+        destroy(handle)
+    detector.tag_families = {}
+
+
+@functools.cache
+def _safe_detector_class() -> type:
+    try:
+        from pupil_apriltags import Detector
+    except ImportError as exc:  # pragma: no cover - a dependency of armvision
+        raise PerceptionError(
+            f"pupil-apriltags is not installed ({exc}): pip install pupil-apriltags"
+        ) from None
+    return type("SafeDetector", (Detector,), {"__del__": _free_in_order})
+
+
+def pupil_detector(**kwargs: Any) -> Any:
+    """A ``pupil_apriltags.Detector(**kwargs)`` that frees its C state in a safe order.
+
+    ``decode_sharpening`` is set as given (pupil-apriltags would truncate it to an integer).
+    """
+    detector = _safe_detector_class()(**kwargs)
+    if "decode_sharpening" in kwargs:
+        detector.tag_detector_ptr.contents.decode_sharpening = float(kwargs["decode_sharpening"])
+    return detector
 
 
 def tag_object_points(tag_size: float) -> Array:
@@ -159,7 +202,9 @@ class TagDetector:
     ``ids``: keep only these ids (None keeps all). ``tag_size``: edge of the black square, m.
     ``nthreads``, ``quad_decimate``, ``quad_sigma``, ``refine_edges``, ``decode_sharpening``:
     pupil-apriltags' detector settings (its defaults, except decimation 1.0: full resolution
-    costs ~2x time at 640x480 but keeps small, distant tags). ``max_hamming``: corrected bits
+    costs ~2x time at 640x480 but keeps small, distant tags). With ``nthreads`` > 1,
+    pupil-apriltags 1.0.4 crashes now and then when detectors are created one after another
+    (seen here in about one run in three of 300 detectors), so one thread is the default. ``max_hamming``: corrected bits
     accepted (0-2; more means more false positives). ``refine_with_depth``: use the depth
     image as described in the module docstring; ``min_depth_points`` valid depth pixels are
     needed inside the tag, and ``max_normal_disagreement_deg`` bounds how far the depth plane
@@ -173,7 +218,7 @@ class TagDetector:
         family: str = "tag36h11",
         ids: Iterable[int] | None = None,
         tag_size: float = 0.04,
-        nthreads: int = 2,
+        nthreads: int = 1,
         quad_decimate: float = 1.0,
         quad_sigma: float = 0.0,
         refine_edges: bool = True,
@@ -190,12 +235,6 @@ class TagDetector:
             raise PerceptionError(
                 f"tag_size must be the black square's edge in metres, got {tag_size}"
             )
-        try:
-            from pupil_apriltags import Detector
-        except ImportError as exc:  # pragma: no cover - a dependency of armvision
-            raise PerceptionError(
-                f"pupil-apriltags is not installed ({exc}): pip install pupil-apriltags"
-            ) from None
         self.family = family
         self.ids = None if ids is None else frozenset(int(i) for i in ids)
         self.tag_size = float(tag_size)
@@ -204,7 +243,7 @@ class TagDetector:
         self.min_depth_points = int(min_depth_points)
         self.max_normal_disagreement = np.radians(max_normal_disagreement_deg)
         self.corner_sigma_px = None if corner_sigma_px is None else float(corner_sigma_px)
-        self._detector = Detector(
+        self._detector = pupil_detector(
             families=family,
             nthreads=int(nthreads),
             quad_decimate=float(quad_decimate),
@@ -212,8 +251,6 @@ class TagDetector:
             refine_edges=int(bool(refine_edges)),
             decode_sharpening=float(decode_sharpening),
         )
-        # pupil-apriltags stores int(decode_sharpening); put the real value in the C struct.
-        self._detector.tag_detector_ptr.contents.decode_sharpening = float(decode_sharpening)
         self._object_points = tag_object_points(self.tag_size)
 
     @classmethod
