@@ -179,6 +179,151 @@ def cmd_sim_snapshot(args: argparse.Namespace, config: Config) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- armvision perceive
+
+
+def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None) -> dict:
+    """Tags, containers and liquid levels in one frame, and the annotated image."""
+    from armvision.perception.annotate import annotate
+    from armvision.perception.liquid import ContainerGeometry, LiquidLevelMeter
+    from armvision.perception.objects import GeometricDetector
+    from armvision.perception.tags import TagDetector
+
+    tags = TagDetector.from_config(config.tag).detect(frame)
+    detections = GeometricDetector(T_base_cam).detect(frame, joint_positions)
+    meter = LiquidLevelMeter()
+    levels = [
+        meter.measure(frame, d.box, ContainerGeometry(tuple(d.center_cam), d.radius, d.height))
+        if d.label == "bottle"
+        else None
+        for d in detections
+    ]
+    image = annotate(frame.color, frame.intrinsics, tags, detections, levels, config.tag.size)
+    records = []
+    for det, level in zip(detections, levels):
+        record = det.to_dict()
+        if level is not None:
+            record["fill"] = level.fill
+            record["fill_confidence"] = level.confidence
+            record["liquid_colour"] = None if level.colour is None else list(level.colour)
+        records.append(record)
+    return {
+        "tags": [
+            {
+                "id": t.id,
+                "T_cam_tag": t.T_cam_tag.tolist(),
+                "decision_margin": t.decision_margin,
+                "pose_error_px": t.pose_error,
+                "depth_refined": t.depth_refined,
+            }
+            for t in tags
+        ],
+        "detections": records,
+        "image": image,
+    }
+
+
+def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
+    from pathlib import Path
+
+    from armvision.sim.snapshot import _write_png
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.real:
+        from armvision.camera.realsense import RealSenseCamera
+
+        with RealSenseCamera.from_config(config.camera) as camera:
+            frame = camera.read(timeout_s=5.0)
+        result = _perceive_frame(config, frame)
+    else:
+        from armvision.camera.sim import SimCamera
+        from armvision.geometry import inv_T
+        from armvision.robot.sim import SimArm
+        from armvision.sim.world import SimWorld
+
+        with SimWorld(config, args.seed) as world, SimCamera(world) as camera:
+            arm = SimArm(world)
+            arm.go_to_sleep_pose()  # folded, with the gripper tag toward the camera
+            world.advance(0.3)
+            frame = camera.read()
+            # No calibration yet: the self-filter uses the simulator's camera pose.
+            result = _perceive_frame(config, frame, world.T_base_cam(), arm.get_joint_positions())
+            T_cam_base = inv_T(world.T_base_cam())
+            result["ground_truth"] = {
+                "T_cam_tag": (T_cam_base @ world.T_base_tag()).tolist(),
+                "objects": [
+                    {
+                        "name": o.spec.name,
+                        "kind": o.spec.kind,
+                        "fill": o.spec.fill,
+                        "center_cam": (
+                            T_cam_base[:3, :3] @ o.T_base_obj[:3, 3]
+                            + T_cam_base[:3, 3]
+                            + T_cam_base[:3, :3] @ o.T_base_obj[:3, 2] * o.spec.height / 2
+                        ).tolist(),
+                    }
+                    for o in world.objects()
+                ],
+            }
+    image = result.pop("image")
+    _write_png(out / "annotated.png", image)
+    with open(out / "detections.json", "w") as fh:
+        json.dump(result, fh, indent=2)
+    print(f"{len(result['tags'])} tag(s), {len(result['detections'])} container(s):")
+    for det in result["detections"]:
+        x, y, z = det["center_cam"]
+        fill = f"  fill {100 * det['fill']:.0f} %" if "fill" in det else ""
+        print(f"  {det['label']:<6} at x={x:+.3f} y={y:+.3f} z={z:.3f} m (camera){fill}")
+    print(f"wrote {out / 'annotated.png'} and {out / 'detections.json'}")
+    return 0
+
+
+# --------------------------------------------------------------------------- armvision eval
+
+
+def _print_summary(title: str, summary: dict) -> None:
+    print(title)
+    width = max(len(k) for k in summary)
+    for key, value in summary.items():
+        shown = f"{value:.3f}" if isinstance(value, float) else str(value)
+        print(f"  {key:<{width}}  {shown}")
+
+
+def cmd_eval_perception(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval import parse_seeds
+    from armvision.eval.objects import evaluate_objects
+    from armvision.eval.tags import evaluate_tags
+
+    seeds = parse_seeds(args.seeds)
+    tags = evaluate_tags(config, seeds)
+    objects = evaluate_objects(config, seeds)
+    result = {
+        "seeds": seeds,
+        "summary": {**tags["summary"], **objects["summary"]},
+        "tags": tags["views"],
+        "objects": objects["per_scene"],
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_summary(
+            f"perception on seeds {args.seeds} (simulation ground truth)", result["summary"]
+        )
+    return 0
+
+
+def cmd_eval_liquid(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval.liquid import evaluate_liquid
+
+    result = evaluate_liquid(config, args.n, args.seed)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_summary(f"liquid level, {args.n} bottles from seed {args.seed}", result["summary"])
+    return 0
+
+
 # --------------------------------------------------------------------------- entry point
 
 
@@ -222,6 +367,28 @@ def build_parser() -> argparse.ArgumentParser:
     snapshot.add_argument("--out", default="snapshot", metavar="DIR", help="output directory")
     snapshot.add_argument("--pose", choices=("home", "sleep"), default="home", help="arm pose")
     snapshot.set_defaults(func=cmd_sim_snapshot)
+
+    perceive = sub.add_parser(
+        "perceive", help="detect tags, bottles, cups and liquid levels in one frame"
+    )
+    source = perceive.add_mutually_exclusive_group()
+    source.add_argument("--sim", action="store_true", help="a simulated scene (default)")
+    source.add_argument("--real", action="store_true", help="the RealSense camera")
+    perceive.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    perceive.add_argument("--out", default="perceive", metavar="DIR", help="output directory")
+    perceive.set_defaults(func=cmd_perceive)
+
+    evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")
+    eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
+    perception = eval_sub.add_parser("perception", help="tag poses and object detection")
+    perception.add_argument("--seeds", default="0-19", help="scene seeds: 7, 0-19 or 1,4,9")
+    perception.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    perception.set_defaults(func=cmd_eval_perception)
+    liquid = eval_sub.add_parser("liquid", help="liquid level in bottles")
+    liquid.add_argument("--n", type=int, default=50, help="number of bottles (default 50)")
+    liquid.add_argument("--seed", type=int, default=0)
+    liquid.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    liquid.set_defaults(func=cmd_eval_liquid)
     return parser
 
 

@@ -117,6 +117,9 @@ class SimConfig:
     encoder_noise_deg: Annotated[float, Field(ge=0.0)] = 0.1  # per reading, 1 sigma
     encoder_bias_deg: Annotated[float, Field(ge=0.0)] = 0.3  # per joint and seed, at most
     timestep: Annotated[float, Field(gt=0.0, le=0.01)] = 0.002  # physics step, seconds
+    # Random light direction, brightness and ambient per seed (see sim.world.random_lighting);
+    # off by default so the default scenes keep their fixed lighting.
+    randomize_lighting: bool = False
 
     @field_validator("max_objects")
     @classmethod

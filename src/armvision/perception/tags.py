@@ -204,13 +204,14 @@ class TagDetector:
     pupil-apriltags' detector settings (its defaults, except decimation 1.0: full resolution
     costs ~2x time at 640x480 but keeps small, distant tags). With ``nthreads`` > 1,
     pupil-apriltags 1.0.4 crashes now and then when detectors are created one after another
-    (seen here in about one run in three of 300 detectors), so one thread is the default. ``max_hamming``: corrected bits
-    accepted (0-2; more means more false positives). ``refine_with_depth``: use the depth
-    image as described in the module docstring; ``min_depth_points`` valid depth pixels are
-    needed inside the tag, and ``max_normal_disagreement_deg`` bounds how far the depth plane
-    may be from the chosen PnP solution before the depth is distrusted. ``corner_sigma_px``:
-    the corner noise used to weigh PnP's tag normal against the depth plane's; None estimates
-    it per tag from the PnP residual (sigma^2 = SSR / (8 - 6), at least 0.05 px).
+    (seen here in about one run in three of 300 detectors), so one thread is the default.
+    ``max_hamming``: corrected bits accepted (0-2; more means more false positives).
+    ``refine_with_depth``: use the depth image as described in the module docstring;
+    ``min_depth_points`` valid depth pixels are needed inside the tag, and
+    ``max_normal_disagreement_deg`` bounds how far the depth plane may be from the chosen PnP
+    solution before the depth is distrusted. ``corner_sigma_px``: the corner noise used to
+    weigh PnP's tag normal against the depth plane's; None estimates it per tag from the PnP
+    residual (sigma^2 = SSR / (8 - 6), at least 0.05 px).
     """
 
     def __init__(

@@ -233,12 +233,47 @@ class LooseTag:
 
 
 @dataclass(frozen=True)
+class Lighting:
+    """The scene's lights: MuJoCo's headlight (at the camera) and one directional key light.
+
+    ``ambient``, ``headlight`` and ``key`` are grey intensities 0..1 (the headlight's ambient
+    and diffuse, the key light's diffuse); ``key_dir`` is the key light's direction in the
+    world frame (pointing from the light into the scene). The defaults are the fixed lighting
+    every scene had before lighting could vary.
+    """
+
+    ambient: float = 0.35
+    headlight: float = 0.45
+    key: float = 0.45
+    key_dir: tuple[float, float, float] = (0.0, 0.0, -1.0)
+
+
+def random_lighting(rng: np.random.Generator) -> Lighting:
+    """Dim to bright rooms: ambient 0.15-0.5, headlight 0.15-0.6, key light 0.2-0.8 shining
+    down at 35-90 degrees of elevation from any bearing."""
+    elevation = math.radians(rng.uniform(35.0, 90.0))
+    bearing = rng.uniform(-math.pi, math.pi)
+    key_dir = (
+        -math.cos(elevation) * math.cos(bearing),
+        -math.cos(elevation) * math.sin(bearing),
+        -math.sin(elevation),
+    )
+    return Lighting(
+        ambient=float(rng.uniform(0.15, 0.5)),
+        headlight=float(rng.uniform(0.15, 0.6)),
+        key=float(rng.uniform(0.2, 0.8)),
+        key_dir=key_dir,
+    )
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """Everything a seed decides about a scene."""
 
     T_base_cam: Array
     objects: tuple[ObjectSpec, ...] = ()
     loose_tags: tuple[LooseTag, ...] = ()
+    lighting: Lighting = field(default_factory=Lighting)
 
 
 def random_camera_pose(sim: SimConfig, rng: np.random.Generator | None) -> Array:
@@ -334,7 +369,13 @@ def generate_scene(config: Config, seed: int) -> SceneSpec:
         LooseTag(free_ids[k], x, y, float(rng.uniform(-math.pi, math.pi)), config.tag.size)
         for k, (x, y) in enumerate(xy[n:])
     )
-    return SceneSpec(T_base_cam, objects, loose)
+    # Lighting draws from its own stream so switching it on leaves the rest of the scene as is.
+    lighting = (
+        random_lighting(np.random.default_rng([seed, 0x11647]))
+        if sim.randomize_lighting
+        else Lighting()
+    )
+    return SceneSpec(T_base_cam, objects, loose, lighting)
 
 
 # --------------------------------------------------------------------------- MJCF
@@ -502,6 +543,7 @@ def _loose_tag_xml(tag: LooseTag, index: int) -> str:
 def build_mjcf(config: Config, scene: SceneSpec) -> tuple[str, dict[str, bytes]]:
     """MJCF text and its asset files (tag textures) for ``scene``."""
     sim, tag = config.sim, config.tag
+    light = scene.lighting
     width, height = config.camera.width, config.camera.height
     files: dict[str, bytes] = {}
     textures, meshes = [], []
@@ -555,7 +597,8 @@ def build_mjcf(config: Config, scene: SceneSpec) -> tuple[str, dict[str, bytes]]
     <global offwidth="{max(width, 640)}" offheight="{max(height, 480)}"/>
     <map znear="0.01" zfar="20"/>
     <quality shadowsize="2048"/>
-    <headlight ambient="0.35 0.35 0.35" diffuse="0.45 0.45 0.45" specular="0.05 0.05 0.05"/>
+    <headlight ambient="{_f([light.ambient] * 3)}" diffuse="{_f([light.headlight] * 3)}"
+               specular="0.05 0.05 0.05"/>
   </visual>
   <default>
     <default class="arm">
@@ -579,8 +622,8 @@ def build_mjcf(config: Config, scene: SceneSpec) -> tuple[str, dict[str, bytes]]
     {chr(10).join(meshes)}
   </asset>
   <worldbody>
-    <light name="ceiling" pos="0.4 0 3" dir="0 0 -1" directional="true" diffuse="0.45 0.45 0.45"
-           castshadow="false"/>
+    <light name="ceiling" pos="0.4 0 3" dir="{_f(light.key_dir)}" directional="true"
+           diffuse="{_f([light.key] * 3)}" castshadow="false"/>
     <geom name="floor" type="plane" size="4 4 0.1" material="floor" contype="1" conaffinity="3"/>
     <geom name="table" type="box" size="0.55 0.65 {TABLE_TOP_Z / 2}" pos="0.3 0 {TABLE_TOP_Z / 2}"
           material="table" contype="1" conaffinity="3" friction="0.6 0.005 0.0001"/>
