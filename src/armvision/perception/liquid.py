@@ -65,6 +65,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.errors import PerceptionError
+from armvision.perception.objects import fit_plane_ransac
 
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
@@ -213,35 +214,26 @@ def fit_table_plane(
 ) -> tuple[Array, float, int]:
     """RANSAC plane ``n . p + d = 0`` through camera-frame points (N, 3), ``n`` facing up.
 
-    ``hypotheses`` random triples are scored at once (one (N, hypotheses) distance matrix);
-    only planes whose normal has at least ``min_up`` along the camera's up (-y) count, so
-    walls and the bottle's own front are not taken for the table. The winner is refit by
-    least squares (SVD) on its inliers. Returns (n, d, inlier count); count 0 if none.
+    :func:`~armvision.perception.objects.fit_plane_ransac` on at most ``max_score`` of the
+    points (keeps this ~1 ms), counting only planes whose normal has at least ``min_up`` along
+    the camera's up (-y), so walls and the bottle's own front are not taken for the table; then
+    a least-squares refit on the inliers among all points. Returns (n, d, inlier count); count
+    0 if there is no such plane.
     """
-    n_pts = len(points)
-    if n_pts < 3:
+    scored = (
+        points if len(points) <= max_score else points[rng.choice(len(points), max_score, False)]
+    )
+    try:
+        normal, offset, _ = fit_plane_ransac(
+            scored, inlier_m, hypotheses, rng, np.array([0.0, -1.0, 0.0]), math.acos(min_up)
+        )
+    except PerceptionError:
         return np.array([0.0, -1.0, 0.0]), 0.0, 0
-    idx = rng.integers(0, n_pts, size=(hypotheses, 3))
-    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
-    normals = np.cross(b - a, c - a)
-    norm = np.linalg.norm(normals, axis=1)
-    ok = norm > 1e-9
-    normals[ok] /= norm[ok, None]
-    normals[normals[:, 1] > 0] *= -1.0  # face the camera's up (-y): the table's top side
-    ok &= -normals[:, 1] >= min_up
-    if not np.any(ok):
+    inliers = points[np.abs(points @ normal + offset) < inlier_m]
+    if len(inliers) < 3:
         return np.array([0.0, -1.0, 0.0]), 0.0, 0
-    normals, a = normals[ok], a[ok]
-    offsets = -np.einsum("ij,ij->i", normals, a)
-    # Scoring on at most max_score points keeps this ~1 ms; the refit below uses them all.
-    scored = points if n_pts <= max_score else points[rng.choice(n_pts, max_score, False)]
-    counts = (np.abs(scored @ normals.T + offsets) < inlier_m).sum(axis=0)
-    best = int(np.argmax(counts))
-    inliers = points[np.abs(points @ normals[best] + offsets[best]) < inlier_m]
     centroid = inliers.mean(axis=0)
-    centred = inliers - centroid
-    # The least-squares normal: the eigenvector of the 3x3 scatter with the smallest eigenvalue.
-    normal = np.linalg.eigh(centred.T @ centred)[1][:, 0]
+    normal = np.linalg.svd(inliers - centroid, full_matrices=False)[2][2]
     if normal[1] > 0:
         normal = -normal
     return normal, float(-normal @ centroid), len(inliers)
