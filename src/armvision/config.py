@@ -85,7 +85,7 @@ class CameraConfig:
     height: Annotated[int, Field(gt=0)] = 480
     fps: Literal[6, 15, 30, 60] = 30
     serial: SerialNumber = None  # choose one of several cameras; None = the first found
-    bag: str | None = None  # play back a recording instead of a live camera
+    bag: str | None = None  # play back a recording (.bag, or .db3 as librealsense 2.59 writes)
 
 
 @dataclass(config=_STRICT)
