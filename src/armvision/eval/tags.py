@@ -17,6 +17,7 @@ import numpy as np
 from armvision.config import Config
 from armvision.geometry import inv_T, make_T, pose_error, rotation_between
 from armvision.perception.tags import TagDetector
+from armvision.robot.kinematics import ik
 
 
 def _tag_pose_facing_camera(
@@ -79,7 +80,9 @@ def evaluate_tags(
                 if T_base_tag[2, 3] < 0.08:  # the gripper would hit the table
                     continue
                 T_base_ee = T_base_tag @ inv_T(world.T_ee_tag)
-                if not arm.set_ee_pose_matrix(T_base_ee, moving_time=2.5):
+                # Most random poses are out of reach; ask IK first so the arm doesn't log each.
+                q, reachable = ik(T_base_ee, arm.get_joint_positions())
+                if not reachable or not arm.set_joint_positions(q, moving_time=3.0):
                     continue
                 world.advance(0.3)
                 frame = camera.read()
