@@ -62,6 +62,14 @@ def intrinsics_to_rs(intr: Intrinsics) -> Any:
     return rs_intr
 
 
+def _is_new_pair(last: tuple[int, int] | None, numbers: tuple[int, int]) -> bool:
+    """Whether (colour, depth) frame numbers form a new pair: both differ from the last pair's.
+
+    librealsense re-sends a frame together with the other stream's next one.
+    """
+    return last is None or (numbers[0] != last[0] and numbers[1] != last[1])
+
+
 # --------------------------------------------------------------------------------------------
 # Choosing a device: plain data in, a device or an error that says what to do out.
 
@@ -314,8 +322,7 @@ class _Recording:
             if depth is None or color is None:
                 continue
             numbers = (color.get_frame_number(), depth.get_frame_number())
-            last = self._last_numbers
-            if last is not None and (numbers[0] == last[0] or numbers[1] == last[1]):
+            if not _is_new_pair(self._last_numbers, numbers):
                 continue
             self._last_numbers = numbers
             self._pair = (depth, color)
@@ -571,10 +578,7 @@ class RealSenseCamera:
             if not color or not depth:
                 continue
             numbers = (color.get_frame_number(), depth.get_frame_number())
-            last = self._last_numbers
-            # The syncer re-sends a frame with the other stream's next one: only a pair whose
-            # frames both differ from the last pair's is new.
-            if last is not None and (numbers[0] == last[0] or numbers[1] == last[1]):
+            if not _is_new_pair(self._last_numbers, numbers):
                 continue
             self._last_numbers = numbers
             return frameset
