@@ -48,6 +48,22 @@ _KANNALA_BRANDT_ITERATIONS = 4
 _FLT_EPSILON = float(np.finfo(np.float32).eps)
 
 
+#: Intel's depth RMS error model (RealSense D400 datasheet / "Tuning depth cameras for best
+#: performance"): RMS = z^2 * subpixel / (focal_px * baseline), with subpixel ~0.08, the
+#: D435's 50 mm baseline and ~424 px focal length of the depth imager at 848x480.
+DEPTH_SUBPIXEL = 0.08
+DEPTH_BASELINE_M = 0.050
+DEPTH_FOCAL_PX = 424.0
+
+
+def depth_rms_error(z: NDArray[np.floating] | float) -> NDArray[np.float64] | float:
+    """Intel's expected depth RMS error (m) at depth ``z`` (m): z^2 * 0.08 / (424 px * 0.05 m).
+
+    One sensor model for the simulator's depth noise and the detectors' weights.
+    """
+    return np.square(z) * DEPTH_SUBPIXEL / (DEPTH_FOCAL_PX * DEPTH_BASELINE_M)
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole intrinsics of one stream, librealsense's ``rs2_intrinsics`` fields.

@@ -20,29 +20,18 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame
+from armvision.camera.frames import Intrinsics, RGBDFrame, depth_rms_error
 from armvision.config import CameraConfig
 from armvision.errors import SimulationError
 from armvision.sim._mujoco import GL_HELP, mujoco
 from armvision.sim.world import SimWorld
 
-#: Intel's depth RMS error model (RealSense D400 datasheet / "Tuning depth cameras for best
-#: performance"): RMS = z^2 * subpixel / (focal_px * baseline), with subpixel ~0.08, the
-#: D435's 50 mm baseline and ~424 px focal length of the depth imager at 848x480.
-DEPTH_SUBPIXEL = 0.08
-DEPTH_BASELINE_M = 0.050
-DEPTH_FOCAL_PX = 424.0
 DEPTH_UNIT_M = 0.001  # the D435's default depth unit: 1 mm
 #: A jump between neighbouring pixels larger than this fraction of the depth is a
 #: discontinuity (an object's silhouette); stereo matching fails there, so the pixels on both
 #: sides read 0.
 DEPTH_EDGE_RELATIVE_JUMP = 0.03
 _BAND_KERNEL = np.ones((3, 3), np.uint8)
-
-
-def depth_rms_error(z: NDArray[np.floating] | float) -> NDArray[np.float64] | float:
-    """Intel's expected depth RMS error (m) at depth ``z`` (m): z^2 * 0.08 / (424 px * 0.05 m)."""
-    return np.square(z) * DEPTH_SUBPIXEL / (DEPTH_FOCAL_PX * DEPTH_BASELINE_M)
 
 
 def depth_edges(

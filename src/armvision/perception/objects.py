@@ -34,7 +34,14 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, deproject_image, project
+from armvision.camera.frames import (
+    Intrinsics,
+    RGBDFrame,
+    deproject,
+    deproject_image,
+    depth_rms_error,
+    project,
+)
 from armvision.errors import PerceptionError
 from armvision.geometry import inv_T, transform_points
 from armvision.robot.kinematics import VX300S, ArmModel, fk
@@ -270,11 +277,6 @@ def cylinder_box(
     return (float(x0), float(y0), float(x1), float(y1))
 
 
-def depth_rms_m(z: float) -> float:
-    """Intel's D400 depth RMS error at distance z: z^2 x 0.08 px / (424 px x 0.05 m)."""
-    return z * z * 0.08 / (424.0 * 0.05)
-
-
 # --------------------------------------------------------------------------- geometric detector
 
 
@@ -491,7 +493,7 @@ class GeometricDetector:
         e1: Array,
         e2: Array,
     ) -> Detection | None:
-        sigma = max(depth_rms_m(float(np.median(z))), 0.001)
+        sigma = max(float(depth_rms_error(float(np.median(z)))), 0.001)
         # A few hundred points fix a circle to well under a millimetre; thousands cost time.
         sub = slice(None, None, max(1, len(uw) // self.max_fit_points))
         center, radius = fit_circle_kasa(uw[sub])
