@@ -65,7 +65,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.errors import PerceptionError
-from armvision.perception.objects import fit_plane_ransac
+from armvision.perception.objects import BOTTLE_BODY_FRACTION, fit_plane_ransac
 
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
@@ -313,7 +313,7 @@ class LiquidLevelMeter:
         method: Method = "profile",
         base: float = 0.003,
         wall: float = 0.002,
-        body_fraction: float = 0.72,
+        body_fraction: float = BOTTLE_BODY_FRACTION,
         body_fraction_range: float = 0.12,
         step_m: float = 0.001,
         colour_threshold: float = 30.0,

@@ -54,6 +54,11 @@ LABELS: tuple[Label, ...] = ("bottle", "cup")
 # --------------------------------------------------------------------------- the record
 
 
+#: Prior share of a bottle's height taken by its body (below the shoulder); the simulated
+#: bottles' value. Measure your own bottles and pass it to the detector and the liquid meter.
+BOTTLE_BODY_FRACTION = 0.72
+
+
 @dataclass(frozen=True, eq=False)
 class Detection:
     """One bottle or cup.
@@ -340,7 +345,7 @@ class GeometricDetector:
         top_rank: int = 5,
         use_color: bool = True,
         color_contrast: float = 10.0,
-        bottle_body_fraction: float = 0.72,
+        bottle_body_fraction: float = BOTTLE_BODY_FRACTION,
         full_support_points: int = 150,
         pixel_stride: int = 2,
         max_fit_points: int = 600,
