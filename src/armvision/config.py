@@ -131,6 +131,56 @@ class SimConfig:
 
 
 @dataclass(config=_STRICT)
+class CalibrationConfig:
+    """Camera-to-robot calibration: the paper's two-phase tag sampling and the solver.
+
+    Phase 1 shows the tag at ``phase1_poses`` azimuths on a circle of ``radius`` at
+    ``phase1_height``, tilted ``phase1_tilt_deg`` to face outwards; phase 2 at
+    ``phase2_azimuths`` azimuths across the half circle facing the camera times
+    ``phase2_heights``, turned toward the camera; ``extra_poses`` more with random tilts (up
+    to ``extra_tilt_deg``) give the rotation-based solvers orientation diversity. Each pose
+    averages ``detections_per_pose`` frames after ``settle_s``. ``method`` is the solver
+    (see ``armvision.calibration.solve.METHODS``); ``file`` where the result is kept.
+    """
+
+    radius: Annotated[float, Field(gt=0.1, le=0.75)] = 0.4
+    phase1_height: Annotated[float, Field(ge=0.02, le=0.7)] = 0.2
+    phase1_poses: Annotated[int, Field(ge=3, le=32)] = 8
+    phase1_tilt_deg: Annotated[float, Field(ge=0.0, le=90.0)] = 60.0
+    phase2_azimuths: Annotated[int, Field(ge=1, le=16)] = 4
+    phase2_heights: tuple[float, ...] = (0.1, 0.2, 0.3)
+    extra_poses: Annotated[int, Field(ge=0, le=100)] = 8
+    extra_tilt_deg: Annotated[float, Field(ge=0.0, le=60.0)] = 30.0
+    detections_per_pose: Annotated[int, Field(ge=1, le=100)] = 5
+    settle_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.5
+    moving_time: PositiveFloat = 2.0
+    min_samples: Annotated[int, Field(ge=3)] = 6
+    method: Literal[
+        "svd",
+        "robust_svd",
+        "joint",
+        "tsai",
+        "park",
+        "horaud",
+        "andreff",
+        "daniilidis",
+        "shah",
+        "li",
+    ] = "joint"
+    outlier_mm: PositiveFloat = 5.0  # robust solvers: residuals above this (and 3 sigma) drop
+    file: str = "calibration.json"  # relative paths are taken from the working directory
+
+    @field_validator("phase2_heights")
+    @classmethod
+    def _heights_sane(cls, heights: tuple[float, ...]) -> tuple[float, ...]:
+        if not heights:
+            raise ValueError("give at least one height")
+        if any(not 0.0 <= h <= 0.7 for h in heights):
+            raise ValueError("heights must be between 0 and 0.7 m above the base")
+        return heights
+
+
+@dataclass(config=_STRICT)
 class Config:
     """The whole tree; every section has the paper's defaults."""
 
@@ -138,6 +188,7 @@ class Config:
     tag: TagConfig = dataclasses.field(default_factory=TagConfig)
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
     sim: SimConfig = dataclasses.field(default_factory=SimConfig)
+    calibration: CalibrationConfig = dataclasses.field(default_factory=CalibrationConfig)
 
 
 _ADAPTER = TypeAdapter(Config)

@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 from armvision.config import Config, SimConfig
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, make_T, rot_z
+from armvision.perception.tags import R_EE_TAG, tag_mount
 from armvision.robot.kinematics import VX300S
 from armvision.sim import assets
 from armvision.sim._mujoco import mujoco
@@ -159,9 +160,6 @@ def camera_pose_from_placement(
     return make_T(np.column_stack([x_cam, y_cam, z_cam]), p_base_cam)
 
 
-#: Tag frame (AprilTag convention: x right, y down, z into the tag) in the ee frame: the tag
-#: faces +z_ee, out of the top of the gripper, upright for a camera in front of the robot.
-R_EE_TAG = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: The textured plate mesh shows its image on +z with the image top at +y (see assets).
 R_TAG_PLATE = np.diag([1.0, -1.0, -1.0])
 
@@ -994,7 +992,7 @@ class SimWorld:
 
     @property
     def T_ee_tag(self) -> Array:
-        return make_T(R_EE_TAG, self.config.tag.offset_ee)
+        return tag_mount(self.config.tag.offset_ee)
 
     def joint_positions(self) -> Array:
         """True arm joint angles, rad, in VX300S.joint_names order."""
