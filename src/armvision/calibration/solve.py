@@ -44,7 +44,6 @@ from scipy.spatial.transform import Rotation
 
 from armvision.errors import CalibrationError
 from armvision.geometry import inv_T, make_T
-from armvision.perception.tags import tag_mount
 
 Array = NDArray[np.float64]
 
