@@ -8,20 +8,32 @@ a traceback (``--debug`` shows it).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
+import math
 import os
 import platform
+import shutil
 import subprocess
 import sys
+import typing
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 from armvision import __version__
-from armvision.config import Config, config_to_toml, find_config_file, load_config
+from armvision.config import (
+    CalibrationConfig,
+    Config,
+    config_to_toml,
+    find_config_file,
+    load_config,
+)
 from armvision.errors import ArmvisionError
 
 log = logging.getLogger("armvision")
+CALIBRATION_METHODS = typing.get_args(typing.get_type_hints(CalibrationConfig)["method"])
 
 
 # --------------------------------------------------------------------------- armvision info
@@ -279,6 +291,119 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- armvision calibrate
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (a line per step when stderr is not a terminal)."""
+
+    def __init__(self, title: str, width: int = 30, stream=None) -> None:
+        self.title = title
+        self.width = width
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+
+    def __call__(self, done: int, total: int, message: str) -> None:
+        filled = int(self.width * done / max(total, 1))
+        bar = "#" * filled + "." * (self.width - filled)
+        line = f"{self.title} [{bar}] {done}/{total} {message}"
+        if self.tty:
+            self.stream.write("\r\033[K" + line[: shutil.get_terminal_size().columns - 1])
+            if done >= total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+
+def _sim_calibration_path(path: str) -> Path:
+    """``calibration.json`` -> ``calibration-sim.json``: a simulated run never overwrites
+    the real arm's calibration."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}-sim{p.suffix or '.json'}")
+
+
+def _print_calibration(stored, result) -> None:
+    samples = result.samples
+    print(f"{'#':>3} {'phase':>5} {'azimuth':>8} {'height':>6} {'seen':>5} {'residual':>9}")
+    for i, (sample, residual) in enumerate(zip(samples, result.fit.residuals)):
+        flag = "  dropped" if not result.fit.used[i] else ""
+        print(
+            f"{i:>3} {sample.phase:>5} {math.degrees(sample.azimuth):>7.0f}\u00b0"
+            f" {sample.height:>5.2f}m {sample.detections:>2}/{sample.frames:<2}"
+            f" {1000 * residual:>6.2f} mm{flag}"
+        )
+    fit = result.fit
+    print(
+        f"method {result.method}: {int(fit.used.sum())} of {len(samples)} samples,"
+        f" residual RMS {1000 * fit.rms_m:.2f} mm, max {1000 * fit.max_m:.2f} mm"
+    )
+    for note in fit.notes:
+        print(f"  {note}")
+    t = result.T_base_cam[:3, 3]
+    print(f"camera at x={t[0]:+.4f} y={t[1]:+.4f} z={t[2]:+.4f} m in the base frame")
+    if result.truth is not None:
+        print(f"{'method':<11} {'residual':>9} {'error vs truth':>22}")
+        for name, fit_or_error in result.fits.items():
+            if isinstance(fit_or_error, str):
+                print(f"{name:<11} failed: {fit_or_error}")
+                continue
+            err = result.truth["methods"][name]
+            mark = " <- chosen" if name == result.method else ""
+            print(
+                f"{name:<11} {1000 * fit_or_error.rms_m:>6.2f} mm"
+                f" {err['translation_error_mm']:>7.2f} mm {err['rotation_error_deg']:>6.3f}\u00b0"
+                f"{mark}"
+            )
+    for line in result.sampling.skipped:
+        print(f"skipped: {line}")
+
+
+def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
+    import time
+
+    from armvision.calibration import store
+    from armvision.calibration.procedure import calibrate, calibrate_sim
+
+    if args.method:
+        config = dataclasses.replace(
+            config, calibration=dataclasses.replace(config.calibration, method=args.method)
+        )
+    progress = ProgressBar("calibrating")
+    if args.real:
+        from armvision.camera.realsense import RealSenseCamera
+        from armvision.robot.interbotix import InterbotixArm
+
+        out = Path(args.out or config.calibration.file)
+        arm = InterbotixArm.from_config(config.robot)
+        with RealSenseCamera.from_config(config.camera) as camera:
+            arm.go_to_home_pose()
+            try:
+                result = calibrate(arm, camera, config, wait=time.sleep, progress=progress)
+            finally:
+                arm.go_to_home_pose()
+                arm.go_to_sleep_pose()
+            stored = store.record(result, source="real")
+    else:
+        out = Path(args.out) if args.out else _sim_calibration_path(config.calibration.file)
+        result = calibrate_sim(config, args.seed, progress=progress)
+        stored = store.record(result, source=f"simulation, seed {args.seed}")
+    store.save(stored, out)
+    if args.json:
+        print(json.dumps({**stored.to_dict(), "path": str(out)}, indent=2))
+    else:
+        _print_calibration(stored, result)
+        print(
+            f"saved {out}"
+            + (
+                f" (previous kept as {store.backup_path(out)})"
+                if store.backup_path(out).exists()
+                else ""
+            )
+        )
+    return 0
+
+
 # --------------------------------------------------------------------------- armvision eval
 
 
@@ -321,6 +446,30 @@ def cmd_eval_liquid(args: argparse.Namespace, config: Config) -> int:
         print(json.dumps(result, indent=2))
     else:
         _print_summary(f"liquid level, {args.n} bottles from seed {args.seed}", result["summary"])
+    return 0
+
+
+def cmd_eval_calibration(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval import parse_seeds
+    from armvision.eval.calibration import evaluate_calibration
+
+    seeds = parse_seeds(args.seeds)
+    progress = None if args.json else ProgressBar("calibrating")
+    result = evaluate_calibration(config, seeds, args.offset_error_mm, progress=progress)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    _print_summary(
+        f"calibration on seeds {args.seeds} (simulation ground truth)", result["summary"]
+    )
+    print(f"{'method':<11} {'translation mm':>19} {'rotation deg':>17}")
+    print(f"{'':<11} {'median':>9} {'max':>9} {'median':>8} {'max':>8}")
+    for name, row in result["methods"].items():
+        print(
+            f"{name:<11} {row['translation_error_mm_median']:>9.2f}"
+            f" {row['translation_error_mm_max']:>9.2f} {row['rotation_error_deg_median']:>8.3f}"
+            f" {row['rotation_error_deg_max']:>8.3f}"
+        )
     return 0
 
 
@@ -378,6 +527,24 @@ def build_parser() -> argparse.ArgumentParser:
     perceive.add_argument("--out", default="perceive", metavar="DIR", help="output directory")
     perceive.set_defaults(func=cmd_perceive)
 
+    calibrate = sub.add_parser(
+        "calibrate", help="find the camera's pose in the robot base frame with the gripper tag"
+    )
+    where = calibrate.add_mutually_exclusive_group()
+    where.add_argument("--sim", action="store_true", help="a simulated workspace (default)")
+    where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
+    calibrate.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    calibrate.add_argument(
+        "--out",
+        metavar="PATH",
+        help="where to save (default: calibration.file; -sim added to the name in simulation)",
+    )
+    calibrate.add_argument(
+        "--method", choices=CALIBRATION_METHODS, help="solver, overriding calibration.method"
+    )
+    calibrate.add_argument("--json", action="store_true", help="print the saved JSON")
+    calibrate.set_defaults(func=cmd_calibrate)
+
     evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")
     eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     perception = eval_sub.add_parser("perception", help="tag poses and object detection")
@@ -389,6 +556,16 @@ def build_parser() -> argparse.ArgumentParser:
     liquid.add_argument("--seed", type=int, default=0)
     liquid.add_argument("--json", action="store_true", help="one JSON object on stdout")
     liquid.set_defaults(func=cmd_eval_liquid)
+    calib = eval_sub.add_parser("calibration", help="camera-to-robot calibration, every solver")
+    calib.add_argument("--seeds", default="0-9", help="seeds: 7, 0-9 or 1,4,9 (default 0-9)")
+    calib.add_argument(
+        "--offset-error-mm",
+        type=float,
+        default=0.0,
+        help="tell the calibration a tag offset wrong by this much (default 0)",
+    )
+    calib.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    calib.set_defaults(func=cmd_eval_calibration)
     return parser
 
 

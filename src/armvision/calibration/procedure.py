@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from armvision.calibration.sampling import Progress, Sample, Sampler, SamplingResult
 from armvision.calibration.solve import METHODS, Fit, solve
 from armvision.camera.base import Camera
+from armvision.camera.frames import Intrinsics
 from armvision.config import Config, TagConfig
 from armvision.errors import CalibrationError
 from armvision.geometry import pose_error
@@ -41,6 +42,8 @@ class CalibrationResult:
     fits: dict[str, Fit | str]
     sampling: SamplingResult
     tag: TagConfig
+    intrinsics: Intrinsics | None = None
+    camera_serial: str | None = None
     truth: dict[str, Any] | None = field(default=None)
 
     @property
@@ -89,7 +92,15 @@ def calibrate(
             f"only {int(chosen.used.sum())} samples agree with each other ({cal.min_samples}"
             f" needed, calibration.min_samples); dropped: {'; '.join(chosen.notes)}"
         )
-    return CalibrationResult(cal.method, chosen, fits, sampling, config.tag)
+    return CalibrationResult(
+        cal.method,
+        chosen,
+        fits,
+        sampling,
+        config.tag,
+        camera.intrinsics,
+        getattr(camera, "serial", None),
+    )
 
 
 def pose_errors(T_estimate: Array, T_true: Array) -> dict[str, float]:

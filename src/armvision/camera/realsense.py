@@ -464,6 +464,7 @@ class RealSenseCamera:
         rs = self._rs
         context = rs.context()
         chosen = select_device(_device_infos(rs, context), self.serial)
+        self.serial = chosen.serial  # the camera in use, e.g. for the calibration file
         config = rs.config()
         config.enable_device(chosen.serial)
         config.enable_stream(rs.stream.color, self.width, self.height, rs.format.rgb8, self.fps)

@@ -142,6 +142,17 @@ class InterbotixArm(ArmBase):
                 f"{model.name}: is robot_model set to {model.name} in xsarm_control?"
             )
 
+    @classmethod
+    def from_config(cls, robot: Any) -> InterbotixArm:
+        """The arm ``config.robot`` describes (timing, group names, gripper pressure)."""
+        return cls(
+            moving_time=robot.moving_time,
+            accel_time=robot.accel_time,
+            group_name=robot.group_name,
+            gripper_name=robot.gripper_name,
+            gripper_pressure=robot.gripper_pressure,
+        )
+
     def _read_joint_positions(self) -> Array:
         core = self.bot.core
         with core.js_mutex:

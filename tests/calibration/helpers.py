@@ -1,0 +1,24 @@
+"""Synthetic calibration samples shared by the calibration tests."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from armvision.geometry import inv_T, make_T
+from armvision.perception.tags import tag_mount
+from armvision.robot.kinematics import fk
+
+T_BASE_CAM = make_T(
+    Rotation.from_euler("zyx", [170, 25, -100], degrees=True).as_matrix(), [1.05, -0.2, 0.48]
+)
+OFFSET = np.array([-0.1, 0.0, 0.03])
+
+
+def samples(n=20, seed=0, offset=OFFSET, T_base_cam=T_BASE_CAM):
+    """Noise-free samples at random in-limit joint positions."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-0.8, 0.8, (n, 6))
+    T_be = np.array([fk(qi) for qi in q])
+    T_ct = np.array([inv_T(T_base_cam) @ T @ tag_mount(offset) for T in T_be])
+    return T_be, T_ct
