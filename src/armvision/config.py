@@ -181,6 +181,71 @@ class CalibrationConfig:
 
 
 @dataclass(config=_STRICT)
+class FusionConfig:
+    """Kalman fusion of camera and encoders, and multi-object tracking (armvision.fusion).
+
+    The fusion loop runs at ``rate_hz`` (the paper's 100 Hz). Motion is constant velocity
+    (``motion_model = "cv"``, white-noise acceleration of density ``accel_noise`` m/s^1.5) or
+    constant acceleration (``"ca"``, white-noise jerk ``jerk_noise`` m/s^2.5). The process noise
+    grows (up to ``adaptive_max_scale`` x) while the fading average of the normalised innovation
+    squared (weight ``adaptive_fading`` for the newest) exceeds ``adaptive_threshold``.
+    Measurements are gated at ``gate_probability`` of the chi-square distribution; after
+    ``max_rejections`` gated in a row from one source the filter restarts from that source.
+    Measurements up to ``history_s`` older than the state are inserted and replayed.
+
+    Sensor models: encoders ``encoder_noise_deg`` per reading and a fixed zero offset of up to
+    ``encoder_bias_deg`` per joint, estimated as joint-space bias states (``encoder_bias =
+    "joint"``), as a random-walk Cartesian offset (``"cartesian"``: prior
+    ``cartesian_bias_sigma`` m, walk ``cartesian_bias_walk`` m/sqrt(s)) or not at all
+    (``"none"``). The camera: ``camera_pixel_sigma`` px across the viewing ray, Intel's depth RMS
+    x ``camera_depth_scale`` along it, at least ``camera_sigma_floor`` m, the tag's rotation
+    ``tag_rotation_sigma_deg``. With ``estimate_camera_pose`` the filter also refines the
+    calibration, whose error is about ``calibration_translation_error`` m and
+    ``calibration_rotation_error_deg``. Objects: accel noise ``object_accel_noise``, at least
+    ``object_sigma_floor`` m per detection; a track is confirmed after ``confirm_hits`` hits
+    in ``confirm_window`` frames and dropped ``drop_after_s`` seconds after it was last seen.
+    """
+
+    rate_hz: Annotated[float, Field(gt=0.0, le=2000.0)] = 100.0
+    motion_model: Literal["cv", "ca"] = "cv"
+    accel_noise: PositiveFloat = 0.1
+    jerk_noise: PositiveFloat = 2.0
+    adaptive_noise: bool = True
+    adaptive_fading: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
+    adaptive_threshold: Annotated[float, Field(ge=1.0)] = 2.0
+    adaptive_max_scale: Annotated[float, Field(ge=1.0)] = 1000.0
+    gate_probability: Annotated[float, Field(gt=0.5, lt=1.0)] = 0.999
+    max_rejections: Annotated[int, Field(ge=1)] = 10
+    history_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.5
+    encoder_noise_deg: PositiveFloat = 0.1
+    encoder_bias: Literal["joint", "cartesian", "none"] = "joint"
+    encoder_bias_deg: Annotated[float, Field(ge=0.0, le=10.0)] = 0.3
+    cartesian_bias_sigma: PositiveFloat = 0.003
+    cartesian_bias_walk: Annotated[float, Field(ge=0.0)] = 0.001
+    estimate_camera_pose: bool = True
+    calibration_translation_error: Annotated[float, Field(ge=0.0, le=0.1)] = 0.002
+    calibration_rotation_error_deg: Annotated[float, Field(ge=0.0, le=10.0)] = 0.2
+    camera_pixel_sigma: PositiveFloat = 0.5
+    camera_depth_scale: Annotated[float, Field(ge=0.0)] = 0.3
+    camera_sigma_floor: Annotated[float, Field(ge=0.0)] = 0.0005
+    tag_rotation_sigma_deg: PositiveFloat = 0.5
+    object_accel_noise: PositiveFloat = 0.05
+    object_sigma_floor: PositiveFloat = 0.002
+    confirm_hits: Annotated[int, Field(ge=1)] = 3
+    # validate_default: the check against confirm_hits runs when only confirm_hits is set.
+    confirm_window: Annotated[int, Field(ge=1, validate_default=True)] = 5
+    drop_after_s: PositiveFloat = 1.0
+
+    @field_validator("confirm_window")
+    @classmethod
+    def _window_holds_hits(cls, confirm_window: int, info: ValidationInfo) -> int:
+        hits = info.data.get("confirm_hits")
+        if hits is not None and confirm_window < hits:
+            raise ValueError(f"must be at least confirm_hits ({hits})")
+        return confirm_window
+
+
+@dataclass(config=_STRICT)
 class Config:
     """The whole tree; every section has the paper's defaults."""
 
@@ -189,6 +254,7 @@ class Config:
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
     sim: SimConfig = dataclasses.field(default_factory=SimConfig)
     calibration: CalibrationConfig = dataclasses.field(default_factory=CalibrationConfig)
+    fusion: FusionConfig = dataclasses.field(default_factory=FusionConfig)
 
 
 _ADAPTER = TypeAdapter(Config)

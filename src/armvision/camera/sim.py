@@ -156,6 +156,9 @@ class SimCamera:
     ``color_noise`` is the standard deviation of Gaussian pixel noise in grey levels.
     """
 
+    #: Stands in for the RealSense serial number in saved files (e.g. the calibration).
+    serial = "sim"
+
     def __init__(
         self,
         world: SimWorld,
