@@ -159,6 +159,7 @@ class CalibrationConfig:
         "svd",
         "robust_svd",
         "joint",
+        "joint_kinematic",
         "tsai",
         "park",
         "horaud",

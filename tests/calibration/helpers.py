@@ -15,10 +15,17 @@ T_BASE_CAM = make_T(
 OFFSET = np.array([-0.1, 0.0, 0.03])
 
 
-def samples(n=20, seed=0, offset=OFFSET, T_base_cam=T_BASE_CAM):
-    """Noise-free samples at random in-limit joint positions."""
+def joint_samples(n=20, seed=0, offset=OFFSET, T_base_cam=T_BASE_CAM, bias=0.0):
+    """Noise-free samples at random in-limit joint positions, read by encoders whose zeros
+    are off by ``bias`` (rad): ``(q_read, T_base_ee from q_read, T_cam_tag)``."""
     rng = np.random.default_rng(seed)
     q = rng.uniform(-0.8, 0.8, (n, 6))
-    T_be = np.array([fk(qi) for qi in q])
-    T_ct = np.array([inv_T(T_base_cam) @ T @ tag_mount(offset) for T in T_be])
+    T_ct = np.array([inv_T(T_base_cam) @ fk(qi) @ tag_mount(offset) for qi in q])
+    q_read = q + bias
+    return q_read, np.array([fk(qi) for qi in q_read]), T_ct
+
+
+def samples(n=20, seed=0, offset=OFFSET, T_base_cam=T_BASE_CAM):
+    """Noise-free samples at random in-limit joint positions: ``(T_base_ee, T_cam_tag)``."""
+    _, T_be, T_ct = joint_samples(n, seed, offset, T_base_cam)
     return T_be, T_ct

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from tests.calibration.helpers import OFFSET, T_BASE_CAM, samples
+from tests.calibration.helpers import OFFSET, T_BASE_CAM, joint_samples, samples
 
 from armvision.calibration.solve import METHODS, solve, solve_points, tag_points
 from armvision.errors import CalibrationError
@@ -100,8 +100,8 @@ def test_degenerate_and_bad_input_is_refused():
 
 @pytest.mark.parametrize("method", list(METHODS))
 def test_every_method_recovers_the_camera_without_noise(method):
-    T_be, T_ct = samples()
-    fit = solve(T_be, T_ct, method, OFFSET)
+    q, T_be, T_ct = joint_samples()
+    fit = solve(T_be, T_ct, method, OFFSET, joint_positions=q)
     # Matrices, not pose_error: its arccos resolves angles only to ~1e-8 rad near zero.
     np.testing.assert_allclose(fit.T_base_cam, T_BASE_CAM, atol=1e-9)
     np.testing.assert_allclose(fit.offset_ee, OFFSET, atol=1e-9)
@@ -153,3 +153,26 @@ def test_tag_points_pairs_the_centres():
     for i in range(3):
         np.testing.assert_allclose(p_base[i], (T_be[i] @ tag_mount(OFFSET))[:3, 3])
         np.testing.assert_allclose(p_cam[i], T_ct[i][:3, 3])
+
+
+def test_joint_kinematic_finds_encoder_zero_offsets():
+    """Encoders whose zeros are off by up to 0.3 deg (not the waist: a waist offset is a turn
+    of the base that no camera can see). The rigid methods are bent by the offsets; the
+    kinematic one recovers the camera, the tag offset and the joint offsets."""
+    bias = np.radians([0.0, 0.3, -0.25, 0.2, -0.3, 0.0])
+    q, T_be, T_ct = joint_samples(n=24, seed=8, bias=bias)
+    joint = solve(T_be, T_ct, "joint", OFFSET)
+    kinematic = solve(T_be, T_ct, "joint_kinematic", OFFSET, joint_positions=q)
+    assert pose_error(joint.T_base_cam, T_BASE_CAM)[0] > 0.001
+    np.testing.assert_allclose(kinematic.T_base_cam, T_BASE_CAM, atol=1e-7)
+    np.testing.assert_allclose(kinematic.joint_offsets, bias, atol=1e-7)
+    np.testing.assert_allclose(kinematic.offset_ee, OFFSET, atol=1e-7)
+    assert any("joint zero offsets" in note for note in kinematic.notes)
+
+
+def test_joint_kinematic_needs_the_joint_readings():
+    T_be, T_ct = samples()
+    with pytest.raises(CalibrationError, match="joint readings"):
+        solve(T_be, T_ct, "joint_kinematic", OFFSET)
+    with pytest.raises(CalibrationError, match=r"\(20, 6\) finite angles"):
+        solve(T_be, T_ct, "joint_kinematic", OFFSET, joint_positions=np.zeros((3, 6)))

@@ -61,10 +61,11 @@ def solve_all(
     """Every method in :data:`METHODS` on the same samples; a failure is kept as its message."""
     T_base_ee = np.array([s.T_base_ee for s in samples])
     T_cam_tag = np.array([s.T_cam_tag for s in samples])
+    q = np.array([s.joint_positions for s in samples])
     fits: dict[str, Fit | str] = {}
     for name in METHODS:
         try:
-            fits[name] = solve(T_base_ee, T_cam_tag, name, offset_ee, outlier_m, min_samples)
+            fits[name] = solve(T_base_ee, T_cam_tag, name, offset_ee, outlier_m, min_samples, q)
         except CalibrationError as exc:
             fits[name] = str(exc)
     return fits

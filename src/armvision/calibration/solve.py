@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from armvision.errors import CalibrationError
 from armvision.geometry import inv_T, make_T
+from armvision.robot.kinematics import fk
 
 Array = NDArray[np.float64]
 
@@ -64,7 +65,9 @@ class Fit:
     """One method's answer on a set of samples.
 
     ``residuals`` (N,) metres for every sample, ``used`` (N,) which samples the answer rests on
-    (robust methods drop some), ``offset_ee`` the tag offset the method used or estimated.
+    (robust methods drop some), ``offset_ee`` the tag offset the method used or estimated,
+    ``joint_offsets`` (6,) the encoder zero offsets a kinematic method estimated (the true
+    angle is the reading minus the offset).
     """
 
     method: str
@@ -73,6 +76,7 @@ class Fit:
     used: Array
     offset_ee: Array
     notes: tuple[str, ...] = field(default=())
+    joint_offsets: Array | None = None  # rad, only from methods that estimate them
 
     @property
     def dropped(self) -> list[int]:
@@ -182,6 +186,7 @@ def solve_svd(
     offset_ee: ArrayLike = DEFAULT_OFFSET_EE,
     outlier_m: float = 0.005,
     min_samples: int = 3,
+    joint_positions: ArrayLike | None = None,
 ) -> Fit:
     """The paper's method: rigid SVD registration of the tag centres, every sample counted."""
     p_cam, p_base = tag_points(T_base_ee, T_cam_tag, offset_ee)
@@ -197,6 +202,7 @@ def solve_robust_svd(
     offset_ee: ArrayLike = DEFAULT_OFFSET_EE,
     outlier_m: float = 0.005,
     min_samples: int = 3,
+    joint_positions: ArrayLike | None = None,
 ) -> Fit:
     """SVD that drops the worst sample while it exceeds max(3 robust sigmas, ``outlier_m``).
 
@@ -222,12 +228,97 @@ def solve_robust_svd(
     return Fit("robust_svd", fit.T_base_cam, residuals, used, np.asarray(offset_ee), tuple(notes))
 
 
+#: Joints whose zero offsets ``joint_kinematic`` estimates: shoulder, elbow, forearm roll and
+#: wrist angle. The waist's offset is a turn of the whole base about its axis, which no camera
+#: can tell from a turn of the camera; the wrist-rotate offset moves the tag centre exactly as a
+#: change of the tag offset does. Both stay in the calibration's error budget (see README).
+KINEMATIC_JOINTS = (1, 2, 3, 4)
+
+
+def _refine(
+    name: str,
+    T_be: Array,
+    T_ct: Array,
+    offset_ee: ArrayLike,
+    outlier_m: float,
+    min_samples: int,
+    joint_positions: Array | None = None,
+    joints: tuple[int, ...] = (),
+) -> Fit:
+    """Least squares over the camera pose, the tag offset and ``joints``' zero offsets."""
+    start = solve_robust_svd(T_be, T_ct, offset_ee, outlier_m, min_samples)
+    p_cam = T_ct[:, :3, 3]
+    k = len(joints)
+
+    def unpack(x: Array) -> tuple[Array, Array, Array]:
+        dq = np.zeros(6)
+        dq[list(joints)] = x[9:]
+        return make_T(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6]), x[6:9], dq
+
+    def kinematics(dq: Array) -> Array:
+        return T_be if not k else fk(joint_positions - dq)
+
+    def residual_vector(x: Array, mask: Array) -> Array:
+        T, o, dq = unpack(x)
+        T_ee = kinematics(dq)[mask]
+        predicted = p_cam[mask] @ T[:3, :3].T + T[:3, 3]
+        measured = np.einsum("nij,j->ni", T_ee[:, :3, :3], o) + T_ee[:, :3, 3]
+        return (predicted - measured).ravel()
+
+    x0 = np.concatenate(
+        [
+            Rotation.from_matrix(start.T_base_cam[:3, :3]).as_rotvec(),
+            start.T_base_cam[:3, 3],
+            np.asarray(offset_ee, dtype=float),
+            np.zeros(k),
+        ]
+    )
+    notes = list(start.notes)
+    # Is the offset observable? The ee rotations must span more than one axis direction.
+    R_flat = T_be[:, :3, :3].reshape(len(T_be), 9)
+    spread = np.linalg.svd(R_flat - R_flat.mean(0), compute_uv=False)
+    if len(T_be) < 4 + 2 * k or spread[1] < 0.05:
+        notes.append("ee orientations too alike to estimate the tag offset; configured one kept")
+        return Fit(
+            name, start.T_base_cam, start.residuals, start.used, start.offset_ee, tuple(notes)
+        )
+
+    def residuals_of(x: Array) -> Array:
+        T, o, dq = unpack(x)
+        return _residuals(T, kinematics(dq), T_ct, o)
+
+    everyone = np.ones(len(T_be), bool)
+    first = least_squares(
+        residual_vector, x0, args=(everyone,), loss="soft_l1", f_scale=outlier_m / 3.0
+    )
+    residuals = residuals_of(first.x)
+    threshold = _outlier_threshold(residuals, outlier_m)
+    used = residuals <= threshold
+    if used.sum() < max(min_samples, 4 + 2 * k):
+        used = everyone.copy()
+    for i in np.flatnonzero(~used):
+        notes.append(
+            f"sample {i} dropped: residual {1000 * residuals[i]:.1f} mm > {1000 * threshold:.1f} mm"
+        )
+    final = least_squares(residual_vector, first.x, args=(used,))
+    T, o, dq = unpack(final.x)
+    moved = 1000 * np.linalg.norm(o - np.asarray(offset_ee, dtype=float))
+    notes.append(
+        f"tag offset estimated {np.round(1000 * o, 1).tolist()} mm"
+        f" ({moved:.1f} mm from the configured one)"
+    )
+    if k:
+        notes.append(f"joint zero offsets estimated {np.round(np.degrees(dq), 3).tolist()} deg")
+    return Fit(name, T, residuals_of(final.x), used, o, tuple(notes), dq if k else None)
+
+
 def solve_joint(
     T_base_ee: ArrayLike,
     T_cam_tag: ArrayLike,
     offset_ee: ArrayLike = DEFAULT_OFFSET_EE,
     outlier_m: float = 0.005,
     min_samples: int = 3,
+    joint_positions: ArrayLike | None = None,
 ) -> Fit:
     """``T_base_cam`` and the tag offset together, by nonlinear least squares.
 
@@ -241,58 +332,36 @@ def solve_joint(
     """
     T_be = _check_poses(T_base_ee, "T_base_ee")
     T_ct = _check_poses(T_cam_tag, "T_cam_tag")
-    start = solve_robust_svd(T_be, T_ct, offset_ee, outlier_m, min_samples)
-    R_be, t_be, p_cam = T_be[:, :3, :3], T_be[:, :3, 3], T_ct[:, :3, 3]
+    return _refine("joint", T_be, T_ct, offset_ee, outlier_m, min_samples)
 
-    def unpack(x: Array) -> tuple[Array, Array]:
-        return make_T(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6]), x[6:9]
 
-    def residual_vector(x: Array, mask: Array) -> Array:
-        T, o = unpack(x)
-        predicted = p_cam[mask] @ T[:3, :3].T + T[:3, 3]
-        measured = np.einsum("nij,j->ni", R_be[mask], o) + t_be[mask]
-        return (predicted - measured).ravel()
+def solve_joint_kinematic(
+    T_base_ee: ArrayLike,
+    T_cam_tag: ArrayLike,
+    offset_ee: ArrayLike = DEFAULT_OFFSET_EE,
+    outlier_m: float = 0.005,
+    min_samples: int = 3,
+    joint_positions: ArrayLike | None = None,
+) -> Fit:
+    """``joint`` plus the zero offsets of :data:`KINEMATIC_JOINTS` (needs the joint readings).
 
-    x0 = np.concatenate(
-        [
-            Rotation.from_matrix(start.T_base_cam[:3, :3]).as_rotvec(),
-            start.T_base_cam[:3, 3],
-            np.asarray(offset_ee, dtype=float),
-        ]
-    )
-    notes = list(start.notes)
-    # Is the offset observable? The ee rotations must span more than one axis direction.
-    spread = np.linalg.svd(
-        R_be.reshape(len(R_be), 9) - R_be.reshape(len(R_be), 9).mean(0), compute_uv=False
-    )
-    if len(R_be) < 4 or spread[1] < 0.05:
-        notes.append("ee orientations too alike to estimate the tag offset; configured one kept")
-        return Fit(
-            "joint", start.T_base_cam, start.residuals, start.used, start.offset_ee, tuple(notes)
+    An encoder whose zero is a fraction of a degree off bends every ee pose the kinematics
+    report, which a rigid camera pose cannot absorb; estimating those offsets with the camera
+    removes their share of the error. The kinematics are then fk(q - offsets); the offsets
+    are in the fit (``joint_offsets``) and the calibration file.
+    """
+    T_be = _check_poses(T_base_ee, "T_base_ee")
+    T_ct = _check_poses(T_cam_tag, "T_cam_tag")
+    if joint_positions is None:
+        raise CalibrationError("joint_kinematic needs the joint readings of every sample")
+    q = np.asarray(joint_positions, dtype=float)
+    if q.shape != (len(T_be), 6) or not np.all(np.isfinite(q)):
+        raise CalibrationError(
+            f"joint_positions must be ({len(T_be)}, 6) finite angles, got shape {q.shape}"
         )
-
-    everyone = np.ones(len(T_be), bool)
-    first = least_squares(
-        residual_vector, x0, args=(everyone,), loss="soft_l1", f_scale=outlier_m / 3.0
+    return _refine(
+        "joint_kinematic", T_be, T_ct, offset_ee, outlier_m, min_samples, q, KINEMATIC_JOINTS
     )
-    T, o = unpack(first.x)
-    residuals = _residuals(T, T_be, T_ct, o)
-    threshold = _outlier_threshold(residuals, outlier_m)
-    used = residuals <= threshold
-    if used.sum() < max(min_samples, 4):
-        used = everyone.copy()
-    for i in np.flatnonzero(~used):
-        notes.append(
-            f"sample {i} dropped: residual {1000 * residuals[i]:.1f} mm > {1000 * threshold:.1f} mm"
-        )
-    final = least_squares(residual_vector, first.x, args=(used,))
-    T, o = unpack(final.x)
-    moved = 1000 * np.linalg.norm(o - np.asarray(offset_ee, dtype=float))
-    notes.append(
-        f"tag offset estimated {np.round(1000 * o, 1).tolist()} mm"
-        f" ({moved:.1f} mm from the configured one)"
-    )
-    return Fit("joint", T, _residuals(T, T_be, T_ct, o), used, o, tuple(notes))
 
 
 _HAND_EYE = {
@@ -361,7 +430,12 @@ def solve_opencv(
 
 def _opencv(method: str) -> Callable[..., Fit]:
     def solve(
-        T_base_ee, T_cam_tag, offset_ee=DEFAULT_OFFSET_EE, outlier_m=0.005, min_samples=3
+        T_base_ee,
+        T_cam_tag,
+        offset_ee=DEFAULT_OFFSET_EE,
+        outlier_m=0.005,
+        min_samples=3,
+        joint_positions=None,
     ) -> Fit:
         return solve_opencv(method, T_base_ee, T_cam_tag)
 
@@ -369,11 +443,13 @@ def _opencv(method: str) -> Callable[..., Fit]:
     return solve
 
 
-#: Every solver by name, each ``f(T_base_ee, T_cam_tag, offset_ee, outlier_m, min_samples)``.
+#: Every solver by name, each
+#: ``f(T_base_ee, T_cam_tag, offset_ee, outlier_m, min_samples, joint_positions=None)``.
 METHODS: dict[str, Callable[..., Fit]] = {
     "svd": solve_svd,
     "robust_svd": solve_robust_svd,
     "joint": solve_joint,
+    "joint_kinematic": solve_joint_kinematic,
     **{name: _opencv(name) for name in (*_HAND_EYE, *_ROBOT_WORLD)},
 }
 
@@ -388,10 +464,11 @@ def solve(
     offset_ee: ArrayLike = DEFAULT_OFFSET_EE,
     outlier_m: float = 0.005,
     min_samples: int = 3,
+    joint_positions: ArrayLike | None = None,
 ) -> Fit:
     """``T_base_cam`` from samples by the named method (see :data:`METHODS`)."""
     if method not in METHODS:
         raise CalibrationError(
             f"unknown calibration method {method!r}; use one of {', '.join(METHODS)}"
         )
-    return METHODS[method](T_base_ee, T_cam_tag, offset_ee, outlier_m, min_samples)
+    return METHODS[method](T_base_ee, T_cam_tag, offset_ee, outlier_m, min_samples, joint_positions)

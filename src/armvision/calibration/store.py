@@ -51,6 +51,7 @@ class StoredCalibration:
     tag: dict[str, Any]
     camera: dict[str, Any]
     source: str
+    joint_offsets: tuple[float, ...] | None = None
     samples: tuple[Sample, ...] = field(default=())
     methods: dict[str, Any] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
@@ -69,6 +70,7 @@ class StoredCalibration:
             "residuals_mm": list(self.residuals_mm),
             "tag": self.tag,
             "camera": self.camera,
+            "joint_offsets_rad": None if self.joint_offsets is None else list(self.joint_offsets),
             "methods": self.methods,
             "samples": [s.to_dict() for s in self.samples],
         }
@@ -96,6 +98,9 @@ def record(result, source: str) -> StoredCalibration:
                 "residual_rms_mm": 1000 * other.rms_m,
                 "offset_ee": other.offset_ee.tolist(),
                 "dropped_samples": other.dropped,
+                "joint_offsets_rad": None
+                if other.joint_offsets is None
+                else other.joint_offsets.tolist(),
             }
     return StoredCalibration(
         T_base_cam=fit.T_base_cam,
@@ -112,6 +117,7 @@ def record(result, source: str) -> StoredCalibration:
             "offset_ee_estimated": fit.offset_ee.tolist(),
             "dropped_samples": fit.dropped,
         },
+        joint_offsets=None if fit.joint_offsets is None else tuple(fit.joint_offsets.tolist()),
         camera={
             "serial": result.camera_serial,
             "intrinsics": intrinsics,
@@ -241,6 +247,12 @@ def load(path: str | os.PathLike) -> StoredCalibration:
         worst = float(data["residual_max_mm"])
         residuals = tuple(float(r) for r in data["residuals_mm"])
         samples = tuple(Sample.from_dict(s) for s in data.get("samples", []))
+        offsets = data.get("joint_offsets_rad")
+        joint_offsets = None if offsets is None else tuple(float(v) for v in offsets)
+        if joint_offsets is not None and (
+            len(joint_offsets) != 6 or not all(map(math.isfinite, joint_offsets))
+        ):
+            raise ValueError("joint_offsets_rad must be 6 finite angles")
         if not isinstance(tag, dict) or not isinstance(camera, dict):
             raise TypeError("tag and camera must be objects")
         for s in samples:
@@ -262,6 +274,7 @@ def load(path: str | os.PathLike) -> StoredCalibration:
         tag=tag,
         camera=camera,
         source=str(data.get("source", "")),
+        joint_offsets=joint_offsets,
         samples=samples,
         methods=dict(data.get("methods", {})),
         truth=data.get("truth"),
