@@ -39,7 +39,10 @@ def main(argv: list[str] | None = None) -> dict:
         config = dataclasses.replace(base, sim=dataclasses.replace(base.sim, encoder_bias_deg=bias))
         results[title] = evaluate_calibration(config, seeds, offset_error_mm=offset_error)
     print(f"\nCalibration error against the true camera pose, seeds {args.seeds}")
-    print("(translation mm / rotation deg, median and worst; default method: joint)\n")
+    print(
+        "(translation mm / rotation deg, median (worst);"
+        f" default method in bold: {base.calibration.method})\n"
+    )
     header = "| method |" + "".join(f" {t} |" for t, _, _ in CONDITIONS)
     print(header)
     print("|---|" + "---:|" * len(CONDITIONS))

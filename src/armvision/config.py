@@ -167,7 +167,7 @@ class CalibrationConfig:
         "daniilidis",
         "shah",
         "li",
-    ] = "joint"
+    ] = "joint_kinematic"  # see README, "Calibration", for why
     outlier_mm: PositiveFloat = 5.0  # robust solvers: residuals above this (and 3 sigma) drop
     file: str = "calibration.json"  # relative paths are taken from the working directory
 

@@ -38,7 +38,7 @@ def test_calibrate_prints_the_residual_table(tmp_path, capsys):
     args = [*FAST, "--set", "calibration.phase2_heights=[0.15, 0.3]"]
     assert main([*args, "calibrate", "--sim", "--seed", "2", "--out", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "residual" in out and "method joint" in out and "<- chosen" in out
+    assert "residual" in out and "method joint_kinematic" in out and "<- chosen" in out
     assert f"saved {path}" in out
     # A second run keeps the first as the backup and says so.
     assert main([*args, "calibrate", "--sim", "--seed", "2", "--out", str(path)]) == 0

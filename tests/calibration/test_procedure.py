@@ -30,7 +30,7 @@ def result():
 
 def test_the_default_method_finds_the_camera_within_millimetres(result):
     dp, dr = pose_error(result.T_base_cam, CAMERA)
-    assert result.method == "joint"
+    assert result.method == "joint_kinematic"
     assert dp < 0.003 and math.degrees(dr) < 0.3
     assert result.truth["translation_error_mm"] == pytest.approx(1000 * dp)
     assert len(result.samples) >= CONFIG.calibration.min_samples
