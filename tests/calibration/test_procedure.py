@@ -20,6 +20,7 @@ from armvision.sim.world import camera_pose_from_placement
 # Encoder noise but no zero-offset bias: a waist offset is indistinguishable from a turn of
 # the base for any camera-based calibration (see README, "Calibration").
 CONFIG = Config(sim=SimConfig(min_objects=0, max_objects=0, encoder_bias_deg=0.0))
+OFFSET_EE = np.asarray(CONFIG.tag.offset_ee)
 CAMERA = camera_pose_from_placement(1.15, math.radians(25), 0.55, math.radians(22))
 
 
@@ -130,3 +131,16 @@ def test_the_phase_one_plan_is_the_papers():
 def test_circular_mean_wraps():
     assert circular_mean([math.radians(170), math.radians(-170)]) == pytest.approx(math.pi)
     assert circular_mean([-0.2, 0.0, 0.2]) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_facing_pose_puts_the_tag_centre_in_place_facing_the_camera():
+    from armvision.calibration.sampling import facing_pose
+    from armvision.perception.tags import tag_mount
+
+    p_tag, p_cam = np.array([0.3, -0.25, 0.15]), np.array([1.1, 0.3, 0.5])
+    for spin in (0.0, 0.7, -1.2):
+        T_base_tag = facing_pose(p_tag, p_cam, OFFSET_EE, spin=spin) @ tag_mount(OFFSET_EE)
+        np.testing.assert_allclose(T_base_tag[:3, 3], p_tag, atol=1e-12)
+        # The tag's z points into the tag, away from the camera that looks at its face.
+        away = (p_tag - p_cam) / np.linalg.norm(p_tag - p_cam)
+        np.testing.assert_allclose(T_base_tag[:3, 2], away, atol=1e-12)

@@ -152,7 +152,11 @@ def circular_mean(angles: Sequence[float]) -> float:
 
 
 def facing_pose(
-    p_base_tag: Array, p_base_camera: Array, offset_ee: Array, spin: float = 0.0, tilt=None
+    p_base_tag: Array,
+    p_base_camera: Array,
+    offset_ee: Array,
+    spin: float = 0.0,
+    tilt: tuple[Array, float] | None = None,
 ) -> Array:
     """``T_base_ee`` that puts the tag centre at ``p_base_tag`` facing ``p_base_camera``.
 
@@ -170,11 +174,9 @@ def facing_pose(
         outward = np.array([0.0, 0.0, -1.0])
     x = outward - np.dot(outward, z) * z
     x /= np.linalg.norm(x)
-    R = np.column_stack([x, np.cross(z, x), z]) @ rot_z(spin)
-    T_base_tag_at_ee = make_T(R, np.zeros(3))  # ee orientation; now place the tag centre
-    t = np.asarray(p_base_tag, float) - R @ np.asarray(offset_ee, float)
-    T_base_tag_at_ee[:3, 3] = t
-    return T_base_tag_at_ee
+    R_base_ee = np.column_stack([x, np.cross(z, x), z]) @ rot_z(spin)
+    # The ee sits where the tag centre, offset_ee out in the ee frame, lands on p_base_tag.
+    return make_T(R_base_ee, np.asarray(p_base_tag, float) - R_base_ee @ np.asarray(offset_ee))
 
 
 def phase2_plan(
