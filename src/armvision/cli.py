@@ -449,6 +449,26 @@ def cmd_eval_liquid(args: argparse.Namespace, config: Config) -> int:
     return 0
 
 
+def cmd_eval_fusion(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval.fusion import evaluate_fusion
+
+    result = evaluate_fusion(config, args.seed, waypoints=args.waypoints)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    summary = result["summary"]
+    _print_summary(f"fusion and tracking, seed {args.seed} (simulation ground truth)", summary)
+    calibration = result["calibration"]
+    print(
+        f"end effector, {result['ee']['seconds']:.1f} s of motion, camera pose off by "
+        f"{calibration['camera_position_error_mm']:.1f} mm / "
+        f"{calibration['camera_rotation_error_deg']:.2f} deg ({calibration['source']}):"
+    )
+    for name in ("fused", "camera", "encoders", "paper"):
+        print(f"  {name:<9} RMSE {summary[f'ee_rmse_mm_{name}']:6.2f} mm")
+    return 0
+
+
 def cmd_eval_calibration(args: argparse.Namespace, config: Config) -> int:
     from armvision.eval import parse_seeds
     from armvision.eval.calibration import evaluate_calibration
@@ -556,6 +576,15 @@ def build_parser() -> argparse.ArgumentParser:
     liquid.add_argument("--seed", type=int, default=0)
     liquid.add_argument("--json", action="store_true", help="one JSON object on stdout")
     liquid.set_defaults(func=cmd_eval_liquid)
+    fusion = eval_sub.add_parser(
+        "fusion", help="Kalman fusion of camera and encoders, and object tracking"
+    )
+    fusion.add_argument("--seed", type=int, default=0)
+    fusion.add_argument(
+        "--waypoints", type=int, default=10, help="poses of the scripted motion (default 10)"
+    )
+    fusion.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    fusion.set_defaults(func=cmd_eval_fusion)
     calib = eval_sub.add_parser("calibration", help="camera-to-robot calibration, every solver")
     calib.add_argument("--seeds", default="0-9", help="seeds: 7, 0-9 or 1,4,9 (default 0-9)")
     calib.add_argument(

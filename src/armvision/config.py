@@ -204,7 +204,8 @@ class FusionConfig:
     calibration, whose error is about ``calibration_translation_error`` m and
     ``calibration_rotation_error_deg``. Objects: accel noise ``object_accel_noise``, at least
     ``object_sigma_floor`` m per detection; a track is confirmed after ``confirm_hits`` hits
-    in ``confirm_window`` frames and dropped ``drop_after_s`` seconds after it was last seen.
+    in ``confirm_window`` frames and dropped ``drop_after_s`` seconds after it was last seen;
+    a detection the gate leaves over joins a leftover track within ``reassociation_radius`` m.
     """
 
     rate_hz: Annotated[float, Field(gt=0.0, le=2000.0)] = 100.0
@@ -216,7 +217,7 @@ class FusionConfig:
     adaptive_threshold: Annotated[float, Field(ge=1.0)] = 2.0
     adaptive_max_scale: Annotated[float, Field(ge=1.0)] = 1000.0
     gate_probability: Annotated[float, Field(gt=0.5, lt=1.0)] = 0.999
-    max_rejections: Annotated[int, Field(ge=1)] = 10
+    max_rejections: Annotated[int, Field(ge=1)] = 5
     history_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.5
     encoder_noise_deg: PositiveFloat = 0.1
     encoder_bias: Literal["joint", "cartesian", "none"] = "joint"
@@ -236,6 +237,7 @@ class FusionConfig:
     # validate_default: the check against confirm_hits runs when only confirm_hits is set.
     confirm_window: Annotated[int, Field(ge=1, validate_default=True)] = 5
     drop_after_s: PositiveFloat = 1.0
+    reassociation_radius: Annotated[float, Field(ge=0.0, le=0.5)] = 0.04
 
     @field_validator("confirm_window")
     @classmethod

@@ -62,10 +62,9 @@ frame from the same two sources, with what the paper's filter lacks:
 from __future__ import annotations
 
 import bisect
-import dataclasses
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,7 +76,7 @@ from armvision.camera.frames import depth_rms_error
 from armvision.config import FusionConfig
 from armvision.fusion import FusionError
 from armvision.geometry import inv_T, make_T, skew
-from armvision.robot.kinematics import VX300S, ArmModel, fk, jacobian_space
+from armvision.robot.kinematics import VX300S, ArmModel, fk, joint_exponentials
 
 Array = NDArray[np.float64]
 
@@ -86,9 +85,12 @@ Array = NDArray[np.float64]
 ENCODER_COUNTS_PER_TURN = 4096
 #: D435i colour stream focal length at 640x480, pixels (used when no intrinsics are given).
 DEFAULT_FOCAL_PX = 615.0
-#: Multiplicative gain of the adaptive process noise per update: log(scale) moves by this
-#: times log(average NIS / threshold), an integral controller on the innovation level.
-ADAPTIVE_GAIN = 0.5
+#: The adaptive process-noise scale falls by at most this factor per update once the
+#: innovations are back to normal, so it relaxes over ~20 updates instead of snapping back.
+ADAPTIVE_RELEASE = 0.8
+#: A gated-out innovation counts in the adaptive average as at most this many gate widths:
+#: enough to raise the process noise quickly in a manoeuvre, bounded for a wild outlier.
+ADAPTIVE_NIS_CAP = 10.0
 #: Measurements closer in time than this are one event and are fused in one stacked update.
 SAME_TIME_S = 1e-6
 
@@ -134,9 +136,16 @@ def joseph_update(x: Array, P: Array, y: Array, H: Array, R: Array) -> tuple[Arr
     S = H @ PHt + R
     K = np.linalg.solve(S, PHt.T).T  # S is symmetric: K = P H^T S^-1
     x_new = x + K @ y
-    A = np.eye(len(x)) - K @ H
+    A = _identity(len(x)) - K @ H
     P_new = A @ P @ A.T + K @ R @ K.T
     return x_new, 0.5 * (P_new + P_new.T), S
+
+
+@functools.lru_cache(maxsize=32)
+def _identity(n: int) -> Array:
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
 
 
 def normalised_innovation_squared(y: Array, S: Array) -> float:
@@ -150,7 +159,21 @@ def gate_threshold(probability: float, dim: int) -> float:
     return float(chi2.ppf(probability, dim))
 
 
+@functools.lru_cache(maxsize=256)
+def _motion_model_cached(dt: float, order: int, density: float) -> tuple[Array, Array]:
+    F, Q = _motion_model(dt, order, density)
+    F.flags.writeable = False
+    Q.flags.writeable = False
+    return F, Q
+
+
 def motion_model(dt: float, order: int, density: float) -> tuple[Array, Array]:
+    """Transition F and process noise Q of a 3-D point over ``dt`` seconds (see
+    :func:`_motion_model`); cached, as a loop's period repeats (the arrays are read-only)."""
+    return _motion_model_cached(float(dt), int(order), float(density))
+
+
+def _motion_model(dt: float, order: int, density: float) -> tuple[Array, Array]:
     """Transition F and process noise Q of a 3-D point over ``dt`` seconds.
 
     ``order`` 2: constant velocity, state (p, v), white-noise acceleration of spectral density
@@ -182,14 +205,32 @@ def motion_model(dt: float, order: int, density: float) -> tuple[Array, Array]:
 def point_jacobian(q: ArrayLike, model: ArmModel = VX300S) -> tuple[Array, Array, Array]:
     """(T_base_ee, Jv, Jw): pose and the 3 x n linear and angular Jacobians of the ee point.
 
-    From the space Jacobian (rows omega, v_s; Modern Robotics eq. 5.11) the ee point moves at
-    v_s + omega x p, so Jv = J_v,s - [p]x J_w.
+    The space Jacobian's columns are J_i = Ad(T_i-1) S_i with T_i-1 = e^[S1]q1 ...
+    e^[Si-1]qi-1 (Modern Robotics eq. 5.11): omega_i = R w_i, v_i = p x omega_i + R v_i, and
+    T_base_ee = T_n M (eq. 4.14). The ee point moves at v_s + omega x p_ee, so
+    Jv = J_v,s - [p_ee]x Jw. One pass over the joints gives the pose and both Jacobians (the
+    fusion loop needs them at 100 Hz; ``fk`` + ``jacobian_space`` would compute the joint
+    exponentials twice). Equal to those to round-off (tests/fusion/test_kalman.py).
     """
-    T_base_ee = fk(q, model)
-    J = jacobian_space(q, model)
-    Jw = J[:3]
-    Jv = J[3:] - skew(T_base_ee[:3, 3]) @ Jw
-    return T_base_ee, Jv, Jw
+    q = np.asarray(q, dtype=float)
+    # The kinematics module's vectorised Rodrigues formula for every joint at once.
+    E = joint_exponentials(model, q[None])[0]
+    n = model.dof
+    T_prev = np.empty((n, 4, 4))
+    T = np.eye(4)
+    for i in range(n):
+        T_prev[i] = T
+        T = T @ E[i]
+    T_base_ee = T @ model.M
+    w, v = model.Slist[:, :3], model.Slist[:, 3:]
+    R = T_prev[:, :3, :3]
+    Jw = np.einsum("kij,kj->ki", R, w)
+    # (p_i - p_ee) x omega_i for every column at once (np.cross is slow on arrays this small).
+    r = T_prev[:, :3, 3] - T_base_ee[:3, 3]
+    Jv = np.einsum("kij,kj->ki", R, v) + (
+        r[:, [1, 2, 0]] * Jw[:, [2, 0, 1]] - r[:, [2, 0, 1]] * Jw[:, [1, 2, 0]]
+    )
+    return T_base_ee, Jv.T, Jw.T
 
 
 def encoder_joint_variance(noise_rad: float) -> float:
@@ -371,6 +412,7 @@ class _Checkpoint:
     q_scale: float
     nis_average: float
     consecutive: tuple[tuple[str, int], ...]
+    counts: tuple[int, tuple[tuple[str, int], ...], int]  # updates, rejected, restarts
 
 
 class MotionFilter:
@@ -395,7 +437,7 @@ class MotionFilter:
         adaptive_fading: float = 0.1,
         adaptive_threshold: float = 2.0,
         adaptive_max_scale: float = 1000.0,
-        max_rejections: int = 10,
+        max_rejections: int = 5,
         reset_sigma: tuple[float, float] = (0.05, 0.5),
     ) -> None:
         if order not in (2, 3):
@@ -422,7 +464,9 @@ class MotionFilter:
         self.P = np.eye(self.n)
         self.q_scale = 1.0
         self.nis_average = 1.0
+        self._last_dt = 0.0
         self._consecutive: dict[str, int] = {}
+        self._transitions: dict[float, tuple[Array, Array, Array]] = {}
         self.stats = FilterStats()
 
     @property
@@ -439,14 +483,21 @@ class MotionFilter:
         self._consecutive = {}
 
     def _transition(self, dt: float) -> tuple[Array, Array]:
-        F_m, Q_m = motion_model(dt, self.order, self.noise_density)
-        m = self.n_motion
-        F = np.eye(self.n)
-        F[:m, :m] = F_m
-        Q = np.zeros((self.n, self.n))
-        Q[:m, :m] = Q_m * self.q_scale
-        Q[m:, m:] = np.diag(self.extra_walk**2 * dt)
-        return F, Q
+        cached = self._transitions.get(dt)
+        if cached is None:
+            F_m, Q_m = motion_model(dt, self.order, self.noise_density)
+            m = self.n_motion
+            F = np.eye(self.n)
+            F[:m, :m] = F_m
+            Q_base = np.zeros((self.n, self.n))
+            Q_base[:m, :m] = Q_m
+            Q_extra = np.zeros((self.n, self.n))
+            Q_extra[m:, m:] = np.diag(self.extra_walk**2 * dt)
+            if len(self._transitions) > 64:  # irregular times: do not grow without bound
+                self._transitions.clear()
+            cached = self._transitions[dt] = (F, Q_base, Q_extra)
+        F, Q_base, Q_extra = cached
+        return F, Q_base * self.q_scale + Q_extra
 
     def predicted(self, t: float) -> tuple[Array, Array]:
         """State and covariance predicted to ``t`` (>= the filter's time), without changing it."""
@@ -466,6 +517,7 @@ class MotionFilter:
 
     def predict(self, t: float) -> None:
         """Move the state to time ``t``."""
+        self._last_dt = max(float(t) - self.t, 0.0) if self.t is not None else 0.0
         self.x, self.P = self.predicted(t)
         self.t = max(float(t), self.t if self.t is not None else float(t))
 
@@ -476,23 +528,36 @@ class MotionFilter:
     def update(self, measurements: Sequence[Measurement], gate: bool = True) -> list[bool]:
         """Fuse measurements taken at the filter's current time; which ones were accepted.
 
-        Each is gated on its own (when ``gate`` and a gate probability is set); the accepted
-        ones are stacked into one Joseph update. Every innovation (capped at the gate) feeds the
-        adaptive process noise, so a manoeuvre that the gate rejects still raises it.
+        First the innovations set the adaptive process noise, and if it rose, the prediction
+        just made is given the extra noise (so the first measurements of a manoeuvre are judged
+        against the covariance the manoeuvre calls for). Then each measurement is gated on its
+        own (when ``gate`` and a gate probability is set) and the accepted ones are stacked
+        into one Joseph update.
         """
+        gating = gate and self.gate_probability is not None
+        nis = [self._nis(m) for m in measurements]
+        if self.adaptive and measurements:
+            before = self.q_scale
+            capped = [
+                (
+                    min(d2, ADAPTIVE_NIS_CAP * gate_threshold(self.gate_probability, len(m.z)))
+                    if gating
+                    else d2,
+                    len(m.z),
+                )
+                for d2, m in zip(nis, measurements)
+            ]
+            self._adapt(capped)
+            if self.q_scale > before and self._last_dt > 0.0:
+                m_ = self.n_motion
+                _, Q_m = motion_model(self._last_dt, self.order, self.noise_density)
+                self.P[:m_, :m_] += (self.q_scale - before) * Q_m
+                if gating:
+                    nis = [self._nis(m) for m in measurements]
         accepted: list[bool] = []
-        nis_values: list[tuple[float, int]] = []
         restart: Measurement | None = None
-        for m in measurements:
-            y, S = self.innovation(m)
-            d2 = normalised_innovation_squared(y, S)
-            ok = True
-            if gate and self.gate_probability is not None:
-                threshold = gate_threshold(self.gate_probability, len(y))
-                nis_values.append((min(d2, threshold), len(y)))
-                ok = d2 <= threshold
-            else:
-                nis_values.append((d2, len(y)))
+        for d2, m in zip(nis, measurements):
+            ok = not gating or d2 <= gate_threshold(self.gate_probability, len(m.z))  # type: ignore[arg-type]
             if ok:
                 self._consecutive[m.source] = 0
             else:
@@ -507,15 +572,21 @@ class MotionFilter:
             self._consecutive[restart.source] = 0
             accepted = [m is restart or ok for m, ok in zip(measurements, accepted)]
         use = [m for m, ok in zip(measurements, accepted) if ok]
-        if use:
+        if len(use) == 1:
+            m = use[0]
+            self.x, self.P, _ = joseph_update(self.x, self.P, m.z - m.H @ self.x, m.H, m.R)
+            self.stats.updates += 1
+        elif use:
             z = np.concatenate([m.z for m in use])
             H = np.vstack([m.H for m in use])
             R = _block_diag([m.R for m in use])
             self.x, self.P, _ = joseph_update(self.x, self.P, z - H @ self.x, H, R)
             self.stats.updates += 1
-        if self.adaptive:
-            self._adapt(nis_values)
         return accepted
+
+    def _nis(self, m: Measurement) -> float:
+        y = m.z - m.H @ self.x
+        return normalised_innovation_squared(y, m.H @ self.P @ m.H.T + m.R)
 
     def _restart_motion(self) -> None:
         """Forget the motion states (keep the extra states): after a run of rejections."""
@@ -530,17 +601,26 @@ class MotionFilter:
         self.stats.restarts += 1
 
     def _adapt(self, nis_values: list[tuple[float, int]]) -> None:
-        """Fading-memory average NIS per dimension drives log(q_scale) (see module docstring)."""
+        """Fading-memory average NIS per dimension drives the process-noise scale.
+
+        Above ``adaptive_threshold`` the scale is multiplied by average / threshold each update
+        (fast attack: a manoeuvre is followed within a few updates); below, it falls by the
+        same ratio but at most by ``ADAPTIVE_RELEASE`` per update, back to 1.
+        """
+        if not nis_values:
+            return
+        # One step per update, from all its innovations together (so their order is moot).
+        per_dim = sum(d2 for d2, _ in nis_values) / sum(dim for _, dim in nis_values)
         a = self.adaptive_fading
-        for d2, dim in nis_values:
-            self.nis_average = (1.0 - a) * self.nis_average + a * d2 / dim
-        step = ADAPTIVE_GAIN * math.log(max(self.nis_average, 1e-6) / self.adaptive_threshold)
-        log_scale = math.log(self.q_scale) + step
-        self.q_scale = math.exp(min(max(log_scale, 0.0), math.log(self.adaptive_max_scale)))
+        self.nis_average = (1.0 - a) * self.nis_average + a * per_dim
+        ratio = self.nis_average / self.adaptive_threshold
+        factor = ratio if ratio > 1.0 else max(ratio, ADAPTIVE_RELEASE)
+        self.q_scale = min(max(self.q_scale * factor, 1.0), self.adaptive_max_scale)
 
     # checkpoints for replaying late measurements
 
     def checkpoint(self) -> _Checkpoint:
+        """Everything :meth:`restore` needs to go back to this moment (a copy)."""
         return _Checkpoint(
             self.t if self.t is not None else -math.inf,
             self.x.copy(),
@@ -548,13 +628,18 @@ class MotionFilter:
             self.q_scale,
             self.nis_average,
             tuple(self._consecutive.items()),
+            (self.stats.updates, tuple(self.stats.rejected.items()), self.stats.restarts),
         )
 
     def restore(self, c: _Checkpoint) -> None:
+        """Go back to a :meth:`checkpoint` (to replay measurements from there)."""
         self.t = None if c.t == -math.inf else c.t
         self.x, self.P = c.x.copy(), c.P.copy()
         self.q_scale, self.nis_average = c.q_scale, c.nis_average
         self._consecutive = dict(c.consecutive)
+        # A replay redoes what came after: count it once, as in the final history.
+        self.stats.updates, rejected, self.stats.restarts = c.counts
+        self.stats.rejected = dict(rejected)
 
 
 def _block_diag(blocks: Sequence[Array]) -> Array:
@@ -608,7 +693,7 @@ def _frozen(a: Array | None) -> Array | None:
 @dataclass(frozen=True)
 class _Event:
     t: float
-    measurements: tuple[Measurement, ...]
+    measurements: tuple[Measurement | Callable[[], Measurement | None], ...]
 
 
 class EEFilter:
@@ -722,10 +807,15 @@ class EEFilter:
             H[:, self._xi.start : self._xi.start + 3] = R_base_cam @ skew(p_cam)
             H[:, self._xi.start + 3 : self._xi.stop] = -R_base_cam
         z = R_base_cam @ p_cam + self.T_base_cam[:3, 3]
-        measurements = [Measurement("camera", z, H, R_base_cam @ cov_cam @ R_base_cam.T)]
-        orientation = self._orientation_measurement(t, T_cam_tag, rot_sigma)
-        if orientation is not None:
-            measurements.append(orientation)
+        measurements: list[Measurement | Callable[[], Measurement | None]] = [
+            Measurement("camera", z, H, R_base_cam @ cov_cam @ R_base_cam.T)
+        ]
+        if self.bias_model == "joint" and self.estimate_camera_pose:
+            # Built when applied, from the joint readings around t known by then (a camera
+            # result usually arrives after the encoder readings that bracket its frame).
+            measurements.append(
+                functools.partial(self._orientation_measurement, t, T_cam_tag.copy(), rot_sigma)
+            )
         self._add(t, measurements)
 
     def estimate(self, t: float | None = None) -> EEEstimate:
@@ -818,8 +908,6 @@ class EEFilter:
         self, t: float, T_cam_tag: Array, rot_sigma: float
     ) -> Measurement | None:
         """The tag's orientation, camera vs encoders: -R dtheta - Jw b (joint biases only)."""
-        if not (self.bias_model == "joint" and self.estimate_camera_pose):
-            return None
         q = self._joints_at(t)
         if q is None:
             return None
@@ -834,11 +922,13 @@ class EEFilter:
         R = np.eye(3) * rot_sigma**2 + encoder_covariance(Jw, self._joint_var)
         return Measurement("tag orientation", e, H, R)
 
-    def _add(self, t: float, measurements: list[Measurement]) -> None:
+    def _add(
+        self, t: float, measurements: list[Measurement | Callable[[], Measurement | None]]
+    ) -> None:
         """Fuse one event: in order, merged with one at the same time, or late and replayed."""
         core = self.core
         if core.t is None:
-            x0, P0 = self._prior(measurements[0].z)
+            x0, P0 = self._prior(measurements[0].z)  # type: ignore[union-attr]
             core.initialize(t, x0, P0)
         newest = self._events[-1].t if self._events else -math.inf
         if t > newest + SAME_TIME_S and t >= core.t - SAME_TIME_S:
@@ -869,7 +959,8 @@ class EEFilter:
 
     def _apply(self, event: _Event) -> None:
         self.core.predict(event.t)
-        self.core.update(event.measurements)
+        built = [m if isinstance(m, Measurement) else m() for m in event.measurements]
+        self.core.update([m for m in built if m is not None])
 
     def _prune(self) -> None:
         horizon = self.core.t - self.config.history_s  # type: ignore[operator]
@@ -877,8 +968,3 @@ class EEFilter:
         k = min(k, len(self._checkpoints) - 1)  # keep the newest, so merging always works
         if k > 0:
             del self._checkpoints[:k], self._events[:k]
-
-
-def replace_config(config: FusionConfig, **changes: object) -> FusionConfig:
-    """A copy of ``config`` with some fields changed (validated like the file)."""
-    return dataclasses.replace(config, **changes)

@@ -89,7 +89,7 @@ class ArmModel:
 
     @cached_property
     def _screw_matrices(self) -> tuple[Array, Array, Array, Array]:
-        """[w], [w]^2, v and a prismatic flag per joint, stacked for :func:`_joint_exponentials`."""
+        """[w], [w]^2, v and a prismatic flag per joint, stacked for :func:`joint_exponentials`."""
         W = np.array([skew(S[:3]) for S in self.Slist])
         prismatic = ~self.Slist[:, :3].any(axis=1)
         return W, W @ W, self.Slist[:, 3:].copy(), prismatic
@@ -125,7 +125,7 @@ VX300S = ArmModel(
 # --------------------------------------------------------------------------- forward kinematics
 
 
-def _joint_exponentials(model: ArmModel, Q: Array) -> Array:
+def joint_exponentials(model: ArmModel, Q: Array) -> Array:
     """e^[S_i]q_i for every joint i and configuration: Q (N, n) -> (N, n, 4, 4).
 
     Rodrigues' formula for screws (MR eq. 3.51, 3.88), evaluated for all joints in a few array
@@ -155,7 +155,7 @@ def fk(q: ArrayLike, model: ArmModel = VX300S) -> Array:
     Q = np.atleast_2d(q)
     if Q.shape[1] != model.dof:
         raise ValueError(f"{model.name} has {model.dof} joints, got q with shape {q.shape}")
-    E = _joint_exponentials(model, Q)
+    E = joint_exponentials(model, Q)
     T = E[:, 0]
     for i in range(1, model.dof):
         T = T @ E[:, i]
@@ -169,7 +169,7 @@ def jacobian_space(q: ArrayLike, model: ArmModel = VX300S) -> Array:
     (Modern Robotics eq. 5.11.) The spatial twist of the end effector is J_s(q) @ qdot.
     """
     q = np.asarray(q, dtype=float)
-    E = _joint_exponentials(model, q[None, :])[0]
+    E = joint_exponentials(model, q[None, :])[0]
     J = np.zeros((6, model.dof))
     T = np.eye(4)
     for i in range(model.dof):

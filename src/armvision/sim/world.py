@@ -939,6 +939,31 @@ class SimWorld:
             self.data.mocap_pos[self._marker_mocap] = p_world
             mujoco.mj_forward(self.model, self.data)
 
+    def set_object_pose(self, name: str, T_base_obj: ArrayLike) -> None:
+        """Put object ``name`` (bottom centre, z along its axis) at ``T_base_obj``, at rest.
+
+        Sets the object's free joint and zeroes its velocity, as if a hand had placed it there;
+        physics carries on from that state. Drive an object along a path by calling this every
+        frame or so with small steps (large jumps into another body make contact forces fly).
+        """
+        if name not in self._object_bodies:
+            raise SimulationError(
+                f"no object {name!r}; the scene has {[o.name for o in self.scene.objects]}"
+            )
+        T = np.asarray(T_base_obj, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise SimulationError(f"T_base_obj must be a finite 4x4 matrix, got shape {T.shape}")
+        if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
+            raise SimulationError("T_base_obj's rotation is not orthonormal: build it with make_T")
+        T_world_obj = T_WORLD_BASE @ T
+        joint = self.model.body_jntadr[self._object_bodies[name]]
+        qadr, dofadr = self.model.jnt_qposadr[joint], self.model.jnt_dofadr[joint]
+        with self.lock:
+            self.data.qpos[qadr : qadr + 3] = T_world_obj[:3, 3]
+            self.data.qpos[qadr + 3 : qadr + 7] = quat_wxyz(T_world_obj[:3, :3])
+            self.data.qvel[dofadr : dofadr + 6] = 0.0
+            mujoco.mj_forward(self.model, self.data)
+
     @property
     def marker_radius(self) -> float:
         return float(

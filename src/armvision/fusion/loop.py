@@ -1,0 +1,278 @@
+"""The fusion loop: the 100 Hz thread that fuses encoders and camera and tracks objects.
+
+:class:`FusionLoop` owns one :class:`~armvision.fusion.kalman.EEFilter` and one
+:class:`~armvision.fusion.tracker.MultiObjectTracker`. Each cycle (:meth:`FusionLoop.step`)
+it
+
+1. reads the arm's encoders (``arm.get_joint_positions()``) and stamps them with ``clock()``;
+2. takes every camera result pushed since the last cycle by other threads
+   (:meth:`~FusionLoop.push_tag` for the gripper tag, :meth:`~FusionLoop.push_detections`
+   for bottles and cups), oldest first, each stamped with its frame's capture time;
+3. fuses them (camera results are older than the encoder reading; the filter inserts and
+   replays them, see :class:`~armvision.fusion.kalman.EEFilter`); object detections are
+   mapped into the base frame with the newest camera pose, the calibration as refined by the
+   end-effector filter (``fusion.estimate_camera_pose``);
+4. publishes an immutable :class:`FusionSnapshot` (:meth:`~FusionLoop.snapshot`).
+
+:meth:`~FusionLoop.start` runs the cycle on a thread at ``config.fusion.rate_hz``;
+:meth:`~FusionLoop.stop` ends it. A failure in the thread stops the loop and is reported in
+the snapshot's ``error`` (and logged), never lost. Without the thread, call :meth:`step` from
+your own loop: that is how lockstep simulations and tests drive it.
+
+Every time pushed in must be on the ``clock``'s time base (simulation time for a SimWorld,
+``time.monotonic`` by default): convert a RealSense frame's timestamp before pushing it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from armvision.config import Config, FusionConfig
+from armvision.fusion import FusionError
+from armvision.fusion.kalman import (
+    DEFAULT_FOCAL_PX,
+    EEEstimate,
+    EEFilter,
+    FilterStats,
+    as_array,
+    as_time,
+)
+from armvision.fusion.tracker import (
+    MultiObjectTracker,
+    ObjectMeasurement,
+    TrackState,
+    measurement_from_detection,
+)
+
+log = logging.getLogger("armvision.fusion")
+
+
+@dataclass(frozen=True)
+class FusionSnapshot:
+    """What the fusion loop knows at ``time`` (clock seconds); immutable, safe to share.
+
+    ``ee``: the fused end effector predicted to ``time`` (None until the first reading);
+    ``T_base_ee``: a full pose, the fused position with the orientation of the encoders
+    corrected by the estimated joint offsets (None like ``ee``); ``tracks``: confirmed object
+    tracks, predicted to ``time``, by id; ``joint_positions``: the encoder reading of this
+    cycle; ``cycles``: cycles run; ``overruns``: cycles that started late by more than a
+    period; ``error``: why the thread stopped, if it failed; ``ee_stats``: the filter's
+    counters (updates, gated, replayed, dropped).
+    """
+
+    time: float
+    ee: EEEstimate | None
+    T_base_ee: np.ndarray | None
+    tracks: tuple[TrackState, ...]
+    joint_positions: np.ndarray | None
+    cycles: int
+    overruns: int
+    running: bool
+    error: str | None
+    ee_stats: FilterStats
+
+
+class FusionLoop:
+    """Fuse an arm's encoders with camera results at a fixed rate (see the module docstring).
+
+    ``arm``: anything with ``get_joint_positions()`` (the Arm interface). ``T_base_cam``: the
+    camera calibration; ``T_ee_tag``: the gripper tag's mount. ``clock``: seconds on the time
+    base of every pushed timestamp. ``focal_px``: the colour camera's focal length.
+    """
+
+    def __init__(
+        self,
+        config: Config | FusionConfig,
+        arm: object,
+        T_base_cam: ArrayLike,
+        T_ee_tag: ArrayLike,
+        clock: Callable[[], float] = time.monotonic,
+        focal_px: float = DEFAULT_FOCAL_PX,
+    ) -> None:
+        self.config = config.fusion if isinstance(config, Config) else config
+        if not callable(getattr(arm, "get_joint_positions", None)):
+            raise FusionError("arm must have get_joint_positions() (the Arm interface)")
+        self.arm = arm
+        self.clock = clock
+        self.focal_px = float(focal_px)
+        self.T_base_cam = as_array("T_base_cam", T_base_cam, (4, 4)).copy()
+        self.ee_filter = EEFilter(self.config, self.T_base_cam, T_ee_tag, focal_px=focal_px)
+        self.tracker = MultiObjectTracker(self.config)
+        self._lock = threading.Lock()  # guards the pending queues and the snapshot
+        self._pending_tags: list[tuple[float, np.ndarray]] = []
+        self._pending_objects: list[tuple[float, list, bool]] = []
+        self._cycles = 0
+        self._overruns = 0
+        self._error: str | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._snapshot = self._make_snapshot(None, None)
+
+    # ---------------------------------------------------------------- producers (any thread)
+
+    def push_tag(self, t: float, T_cam_tag: ArrayLike) -> None:
+        """A gripper-tag pose seen in a frame captured at ``t`` (clock seconds)."""
+        item = (as_time("t", t), as_array("T_cam_tag", T_cam_tag, (4, 4)).copy())
+        with self._lock:
+            self._pending_tags.append(item)
+
+    def push_detections(self, t: float, detections: Sequence[object]) -> None:
+        """Every bottle/cup detection (camera frame) of the frame captured at ``t``.
+
+        Push an empty list for a processed frame with nothing in it, so tracks count a miss.
+        The loop maps them into the base frame when it fuses them, with its newest camera pose
+        (the calibration as refined by the end-effector filter, when it estimates it).
+        """
+        t = as_time("t", t)
+        items = list(detections)
+        for d in items:
+            if not hasattr(d, "center_cam") or not hasattr(d, "label"):
+                raise FusionError(
+                    f"expected perception Detections (center_cam, label), got {type(d).__name__}"
+                )
+        with self._lock:
+            self._pending_objects.append((t, items, False))
+
+    def push_object_measurements(self, t: float, measurements: Sequence[ObjectMeasurement]) -> None:
+        """Like :meth:`push_detections` with measurements already in the base frame."""
+        t = as_time("t", t)
+        items = list(measurements)
+        for m in items:
+            if not isinstance(m, ObjectMeasurement):
+                raise FusionError(f"expected ObjectMeasurement, got {type(m).__name__}")
+        with self._lock:
+            self._pending_objects.append((t, items, True))
+
+    # ---------------------------------------------------------------- the cycle
+
+    def step(self) -> FusionSnapshot:
+        """One fusion cycle (see the module docstring); returns and publishes the snapshot."""
+        t = float(self.clock())
+        q = np.asarray(self.arm.get_joint_positions(), dtype=float)  # type: ignore[attr-defined]
+        with self._lock:
+            tags, self._pending_tags = self._pending_tags, []
+            objects, self._pending_objects = self._pending_objects, []
+        self.ee_filter.update_encoders(t, q)
+        for t_tag, T_cam_tag in sorted(tags, key=lambda item: item[0]):
+            self.ee_filter.update_camera(t_tag, T_cam_tag)
+        if objects:
+            T_base_cam = self.ee_filter.T_base_cam_refined()
+            for t_frame, items, in_base in sorted(objects, key=lambda item: item[0]):
+                measurements = (
+                    items
+                    if in_base
+                    else [
+                        measurement_from_detection(d, T_base_cam, self.config, self.focal_px)
+                        for d in items
+                    ]
+                )
+                self.tracker.update(t_frame, measurements)
+        self._cycles += 1
+        snapshot = self._make_snapshot(t, q)
+        with self._lock:
+            self._snapshot = snapshot
+        return snapshot
+
+    def _make_snapshot(self, t: float | None, q: np.ndarray | None) -> FusionSnapshot:
+        ee = self.ee_filter.estimate(t) if self.ee_filter.time is not None else None
+        T_base_ee = None
+        if ee is not None and q is not None:
+            T_base_ee = self.ee_filter.T_base_ee(q)
+            T_base_ee[:3, 3] = ee.p_base
+            T_base_ee.flags.writeable = False
+        q_out = None
+        if q is not None:
+            q_out = q.copy()
+            q_out.flags.writeable = False
+        tracks = tuple(self.tracker.tracks(t)) if t is not None else ()
+        stats = self.ee_filter.stats
+        return FusionSnapshot(
+            time=math.nan if t is None else t,
+            ee=ee,
+            T_base_ee=T_base_ee,
+            tracks=tracks,
+            joint_positions=q_out,
+            cycles=self._cycles,
+            overruns=self._overruns,
+            running=self.running,
+            error=self._error,
+            ee_stats=FilterStats(
+                stats.updates,
+                dict(stats.rejected),
+                stats.restarts,
+                stats.late_replayed,
+                stats.late_dropped,
+            ),
+        )
+
+    def snapshot(self) -> FusionSnapshot:
+        """The newest published snapshot (immutable)."""
+        with self._lock:
+            return self._snapshot
+
+    # ---------------------------------------------------------------- the thread
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> None:
+        """Run :meth:`step` on a thread at ``rate_hz`` (wall-clock) until :meth:`stop`."""
+        if self.running:
+            return
+        self._stop.clear()
+        self._error = None
+        self._thread = threading.Thread(target=self._run, name="fusion", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop the thread (waits up to ``timeout_s``); the last snapshot stays readable."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout_s)
+            if self._thread.is_alive():
+                log.warning("fusion thread did not stop within %.1f s", timeout_s)
+            self._thread = None
+        snapshot = self.snapshot()
+        with self._lock:
+            self._snapshot = _replace_running(snapshot, False, self._error)
+
+    def __enter__(self) -> FusionLoop:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        period = 1.0 / self.config.rate_hz
+        next_time = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                self.step()
+                next_time += period
+                delay = next_time - time.monotonic()
+                if delay < -period:  # more than a cycle behind: count it, do not try to catch up
+                    self._overruns += 1
+                    next_time = time.monotonic()
+                elif delay > 0:
+                    self._stop.wait(delay)
+        except Exception as exc:  # reported in the snapshot, not lost with the thread
+            self._error = f"{type(exc).__name__}: {exc}"
+            log.exception("fusion loop failed")
+            snapshot = self.snapshot()
+            with self._lock:
+                self._snapshot = _replace_running(snapshot, False, self._error)
+
+
+def _replace_running(snapshot: FusionSnapshot, running: bool, error: str | None) -> FusionSnapshot:
+    return dataclasses.replace(snapshot, running=running, error=error)
