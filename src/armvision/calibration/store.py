@@ -27,7 +27,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armvision.calibration.sampling import Sample
-from armvision.camera.frames import Intrinsics
 from armvision.errors import CalibrationError
 
 Array = NDArray[np.float64]
@@ -87,7 +86,7 @@ def record(result, source: str) -> StoredCalibration:
     simulator's camera pose and the errors, when there is one.
     """
     fit = result.fit
-    intrinsics = None if result.intrinsics is None else _intrinsics_dict(result.intrinsics)
+    intrinsics = None if result.intrinsics is None else result.intrinsics.to_dict()
     methods: dict[str, Any] = {}
     for name, other in result.fits.items():
         if isinstance(other, str):
@@ -127,19 +126,6 @@ def record(result, source: str) -> StoredCalibration:
         methods=methods,
         truth=result.truth,
     )
-
-
-def _intrinsics_dict(intr: Intrinsics) -> dict[str, Any]:
-    return {
-        "width": intr.width,
-        "height": intr.height,
-        "fx": intr.fx,
-        "fy": intr.fy,
-        "ppx": intr.ppx,
-        "ppy": intr.ppy,
-        "model": intr.model,
-        "coeffs": list(intr.coeffs),
-    }
 
 
 def backup_path(path: str | os.PathLike) -> Path:

@@ -87,6 +87,19 @@ class Intrinsics:
         # A tuple of floats even when given a list or array, so Intrinsics stay hashable.
         object.__setattr__(self, "coeffs", tuple(float(c) for c in self.coeffs))
 
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as plain JSON values (for saved files: snapshots, calibrations)."""
+        return {
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "ppx": self.ppx,
+            "ppy": self.ppy,
+            "model": self.model,
+            "coeffs": list(self.coeffs),
+        }
+
     @property
     def K(self) -> Array:
         """3x3 camera matrix [[fx, 0, ppx], [0, fy, ppy], [0, 0, 1]] (OpenCV's K)."""
