@@ -343,15 +343,15 @@ def _print_calibration(stored, result) -> None:
     t = result.T_base_cam[:3, 3]
     print(f"camera at x={t[0]:+.4f} y={t[1]:+.4f} z={t[2]:+.4f} m in the base frame")
     if result.truth is not None:
-        print(f"{'method':<11} {'residual':>9} {'error vs truth':>22}")
+        print(f"{'method':<16} {'residual':>9} {'error vs truth':>22}")
         for name, fit_or_error in result.fits.items():
             if isinstance(fit_or_error, str):
-                print(f"{name:<11} failed: {fit_or_error}")
+                print(f"{name:<16} failed: {fit_or_error}")
                 continue
             err = result.truth["methods"][name]
             mark = " <- chosen" if name == result.method else ""
             print(
-                f"{name:<11} {1000 * fit_or_error.rms_m:>6.2f} mm"
+                f"{name:<16} {1000 * fit_or_error.rms_m:>6.2f} mm"
                 f" {err['translation_error_mm']:>7.2f} mm {err['rotation_error_deg']:>6.3f}\u00b0"
                 f"{mark}"
             )
@@ -482,11 +482,11 @@ def cmd_eval_calibration(args: argparse.Namespace, config: Config) -> int:
     _print_summary(
         f"calibration on seeds {args.seeds} (simulation ground truth)", result["summary"]
     )
-    print(f"{'method':<11} {'translation mm':>19} {'rotation deg':>17}")
-    print(f"{'':<11} {'median':>9} {'max':>9} {'median':>8} {'max':>8}")
+    print(f"{'method':<16} {'translation mm':>19} {'rotation deg':>17}")
+    print(f"{'':<16} {'median':>9} {'max':>9} {'median':>8} {'max':>8}")
     for name, row in result["methods"].items():
         print(
-            f"{name:<11} {row['translation_error_mm_median']:>9.2f}"
+            f"{name:<16} {row['translation_error_mm_median']:>9.2f}"
             f" {row['translation_error_mm_max']:>9.2f} {row['rotation_error_deg_median']:>8.3f}"
             f" {row['rotation_error_deg_max']:>8.3f}"
         )
