@@ -323,7 +323,7 @@ def _sim_calibration_path(path: str) -> Path:
     return p.with_name(f"{p.stem}-sim{p.suffix or '.json'}")
 
 
-def _print_calibration(stored, result) -> None:
+def _print_calibration(result) -> None:
     samples = result.samples
     print(f"{'#':>3} {'phase':>5} {'azimuth':>8} {'height':>6} {'seen':>5} {'residual':>9}")
     for i, (sample, residual) in enumerate(zip(samples, result.fit.residuals)):
@@ -392,7 +392,7 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
     if args.json:
         print(json.dumps({**stored.to_dict(), "path": str(out)}, indent=2))
     else:
-        _print_calibration(stored, result)
+        _print_calibration(result)
         print(
             f"saved {out}"
             + (

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from tests.calibration.helpers import OFFSET, T_BASE_CAM, joint_samples, samples
 
-from armvision.calibration.solve import METHODS, solve, solve_points, tag_points
+from armvision.calibration.solve import DEFAULT_METHOD, METHODS, solve, solve_points, tag_points
 from armvision.errors import CalibrationError
 from armvision.geometry import inv_T, make_T, pose_error
 from armvision.perception.tags import tag_mount
@@ -176,3 +176,15 @@ def test_joint_kinematic_needs_the_joint_readings():
         solve(T_be, T_ct, "joint_kinematic", OFFSET)
     with pytest.raises(CalibrationError, match=r"\(20, 6\) finite angles"):
         solve(T_be, T_ct, "joint_kinematic", OFFSET, joint_positions=np.zeros((3, 6)))
+
+
+def test_the_configuration_offers_exactly_the_solvers_there_are():
+    """calibration.method is a Literal in config (which must not import OpenCV); keep the two
+    lists in step."""
+    import typing
+
+    from armvision.config import CalibrationConfig
+
+    offered = typing.get_args(typing.get_type_hints(CalibrationConfig)["method"])
+    assert set(offered) == set(METHODS)
+    assert CalibrationConfig().method == DEFAULT_METHOD

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from armvision.calibration.solve import solve_points, tag_points
 from armvision.camera.base import Camera
 from armvision.config import CalibrationConfig, TagConfig
 from armvision.errors import CalibrationError
@@ -345,8 +346,6 @@ class Sampler:
         )
         if len(phase1) < 3:
             return azimuth, nominal
-        from armvision.calibration.solve import solve_points, tag_points
-
         p_cam, p_base = tag_points(
             np.array([s.T_base_ee for s in phase1]),
             np.array([s.T_cam_tag for s in phase1]),

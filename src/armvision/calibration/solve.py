@@ -142,9 +142,13 @@ def solve_points(p_cam: ArrayLike, p_base: ArrayLike, weights: ArrayLike | None 
         )
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    t = c_base - R @ c_cam
-    residuals = np.linalg.norm(pc @ R.T + t - pb, axis=1)
-    return PointFit(make_T(R, t), residuals)
+    T = make_T(R, c_base - R @ c_cam)
+    return PointFit(T, point_residuals(T, pc, pb))
+
+
+def point_residuals(T_base_cam: Array, p_cam: Array, p_base: Array) -> Array:
+    """Per point, the distance between ``T_base_cam @ p_cam`` and ``p_base``, metres."""
+    return np.linalg.norm(p_cam @ T_base_cam[:3, :3].T + T_base_cam[:3, 3] - p_base, axis=1)
 
 
 def _check_poses(T: ArrayLike, name: str) -> Array:
@@ -172,8 +176,7 @@ def tag_points(
 def _residuals(
     T_base_cam: Array, T_base_ee: Array, T_cam_tag: Array, offset_ee: ArrayLike
 ) -> Array:
-    p_cam, p_base = tag_points(T_base_ee, T_cam_tag, offset_ee)
-    return np.linalg.norm(p_cam @ T_base_cam[:3, :3].T + T_base_cam[:3, 3] - p_base, axis=1)
+    return point_residuals(T_base_cam, *tag_points(T_base_ee, T_cam_tag, offset_ee))
 
 
 def _outlier_threshold(residuals: Array, floor_m: float) -> float:
@@ -215,9 +218,7 @@ def solve_robust_svd(
     notes: list[str] = []
     while True:
         fit = solve_points(p_cam[used], p_base[used])
-        residuals = np.linalg.norm(
-            p_cam @ fit.T_base_cam[:3, :3].T + fit.T_base_cam[:3, 3] - p_base, axis=1
-        )
+        residuals = point_residuals(fit.T_base_cam, p_cam, p_base)
         threshold = _outlier_threshold(residuals[used], outlier_m)
         worst = int(np.argmax(np.where(used, residuals, -1.0)))
         if residuals[worst] <= threshold or used.sum() <= max(min_samples, 3):
