@@ -249,6 +249,94 @@ class FusionConfig:
 
 
 @dataclass(config=_STRICT)
+class RuntimeConfig:
+    """The running system's threads (armvision.runtime): how often each stage works.
+
+    The camera thread reads every frame (``camera.fps``); the tag, object and liquid threads
+    take the newest frame at most ``tag_hz``, ``object_hz``, ``liquid_hz`` times a second
+    (each is as fast as its detector allows below that). ``liquid_window`` measurements per
+    track are averaged. A thread with no output for ``stale_s`` is reported stale. Starting
+    and stopping a thread may take at most ``join_timeout_s``.
+    """
+
+    tag_hz: Annotated[float, Field(gt=0.0, le=120.0)] = 30.0
+    object_hz: Annotated[float, Field(gt=0.0, le=120.0)] = 10.0
+    liquid_hz: Annotated[float, Field(gt=0.0, le=60.0)] = 2.0
+    liquid_window: Annotated[int, Field(ge=1, le=100)] = 8
+    tag_detection: bool = True
+    object_detection: bool = True
+    liquid_detection: bool = True
+    stale_s: PositiveFloat = 1.0
+    join_timeout_s: PositiveFloat = 3.0
+
+
+@dataclass(config=_STRICT)
+class GrabConfig:
+    """The grasp (armvision.tasks.grab), the paper's sequence and safety rules.
+
+    Start at ``safe_pose`` (x, y, z in the base frame, gripper level, open); approach through a
+    waypoint ``standoff`` m short of the bottle on the line from the base; grasp at
+    ``grasp_height_fraction`` of the bottle's estimated height; lift ``lift`` m. Abort if the
+    bottle is nearer than ``min_base_distance`` m to the base axis. An unreachable move is
+    tried ``retries`` more times after ``retry_delay_s``; the whole task gives up after
+    ``timeout_s``. Each move takes ``moving_time`` s (Interbotix's default timing otherwise).
+    """
+
+    safe_pose: Vector3 = (0.1, 0.0, 0.65)
+    standoff: PositiveFloat = 0.15
+    grasp_height_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.45
+    lift: PositiveFloat = 0.10
+    min_base_distance: Annotated[float, Field(ge=0.0)] = 0.05
+    retries: Annotated[int, Field(ge=0, le=10)] = 2
+    retry_delay_s: Annotated[float, Field(ge=0.0)] = 0.5
+    timeout_s: PositiveFloat = 30.0
+    moving_time: PositiveFloat = 1.5
+    track_wait_s: PositiveFloat = 10.0
+
+
+@dataclass(config=_STRICT)
+class FollowConfig:
+    """Following a tag or a bottle (armvision.tasks.follow).
+
+    A servo loop at ``rate_hz`` streams joint targets from damped least-squares differential
+    IK (damping ``damping``), with the end effector's speed and acceleration limited to
+    ``max_speed`` m/s and ``max_accel`` m/s^2, keeping ``standoff`` m from the target on the
+    line from the base at the target's height plus ``height_offset``. It stops after
+    ``duration_s`` or when the target has not been seen for ``lost_timeout_s``. ``tag_id`` is
+    the tag to follow (a tag other than the gripper's).
+    """
+
+    rate_hz: Annotated[float, Field(ge=1.0, le=200.0)] = 50.0
+    duration_s: PositiveFloat = 20.0
+    tag_id: Annotated[int, Field(ge=0)] = 0
+    standoff: Annotated[float, Field(ge=0.0)] = 0.12
+    height_offset: float = 0.10
+    gain: PositiveFloat = 4.0
+    damping: PositiveFloat = 0.05
+    max_speed: PositiveFloat = 0.25
+    max_accel: PositiveFloat = 1.0
+    lost_timeout_s: PositiveFloat = 0.5
+
+
+@dataclass(config=_STRICT)
+class AnalyzeConfig:
+    """Liquid-level analysis of a bottle (armvision.tasks.analyze).
+
+    ``frames`` measurements are averaged (weighted by confidence); below ``min_confidence``
+    on average, or when the bottle is seen smaller than ``min_box_height_px`` pixels, the view
+    is poor and (with ``allow_pick``) the bottle is picked up and shown to the camera at
+    ``present_distance`` m from it.
+    """
+
+    frames: Annotated[int, Field(ge=1, le=100)] = 8
+    min_confidence: Annotated[float, Field(ge=0.0, le=1.0)] = 0.5
+    min_box_height_px: Annotated[float, Field(ge=0.0)] = 60.0
+    allow_pick: bool = True
+    present_distance: PositiveFloat = 0.45
+    timeout_s: PositiveFloat = 30.0
+
+
+@dataclass(config=_STRICT)
 class Config:
     """The whole tree; every section has the paper's defaults."""
 
@@ -258,6 +346,10 @@ class Config:
     sim: SimConfig = dataclasses.field(default_factory=SimConfig)
     calibration: CalibrationConfig = dataclasses.field(default_factory=CalibrationConfig)
     fusion: FusionConfig = dataclasses.field(default_factory=FusionConfig)
+    runtime: RuntimeConfig = dataclasses.field(default_factory=RuntimeConfig)
+    grab: GrabConfig = dataclasses.field(default_factory=GrabConfig)
+    follow: FollowConfig = dataclasses.field(default_factory=FollowConfig)
+    analyze: AnalyzeConfig = dataclasses.field(default_factory=AnalyzeConfig)
 
 
 _ADAPTER = TypeAdapter(Config)

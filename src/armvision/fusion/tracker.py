@@ -54,18 +54,24 @@ Array = NDArray[np.float64]
 LABEL_MISMATCH_COST = 4.0
 #: Initial velocity spread of a new track, m/s: objects are usually still when first seen.
 NEW_TRACK_SPEED_SIGMA = 0.2
+#: Size (radius, height) of a track: the median of its last this many detections.
+SIZE_WINDOW = 15
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 
 @dataclass(frozen=True, eq=False)
 class ObjectMeasurement:
     """A detected object's centre in the base frame: ``p_base`` (3,), covariance ``R_base``
-    (3, 3), ``label`` ("bottle", "cup") and detector ``score`` in [0, 1]."""
+    (3, 3), ``label`` ("bottle", "cup") and detector ``score`` in [0, 1]. ``radius`` and
+    ``height`` (m) and the image ``box`` (x0, y0, x1, y1) when the detector gives them."""
 
     p_base: Array
     R_base: Array
     label: str
     score: float = 1.0
+    radius: float | None = None
+    height: float | None = None
+    box: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p_base", as_array("p_base", self.p_base, (3,)))
@@ -106,7 +112,22 @@ def measurement_from_detection(
         R_base=R_base_cam @ cov_cam @ R_base_cam.T,
         label=str(detection.label),  # type: ignore[attr-defined]
         score=float(np.clip(detection.score, 0.0, 1.0)),  # type: ignore[attr-defined]
+        radius=_finite_or_none(getattr(detection, "radius", None)),
+        height=_finite_or_none(getattr(detection, "height", None)),
+        box=(
+            tuple(float(v) for v in detection.box)  # type: ignore[attr-defined]
+            if getattr(detection, "box", None) is not None
+            else None
+        ),
     )
+
+
+def _finite_or_none(value: object) -> float | None:
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0.0 else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,6 +149,9 @@ class TrackState:
     hits: int
     last_seen: float
     votes: tuple[tuple[str, float], ...]
+    radius: float | None = None
+    height: float | None = None
+    box: tuple[float, float, float, float] | None = None
 
     @property
     def sigma_mm(self) -> float:
@@ -156,6 +180,17 @@ class _Track:
         self.hits = 1
         self.last_seen = t
         self.votes: dict[str, float] = {m.label: max(m.score, 1e-6)}
+        self.radii: deque[float] = deque(maxlen=SIZE_WINDOW)
+        self.heights: deque[float] = deque(maxlen=SIZE_WINDOW)
+        self.box: tuple[float, float, float, float] | None = None
+        self.add_size(m)
+
+    def add_size(self, m: ObjectMeasurement) -> None:
+        if m.radius is not None:
+            self.radii.append(m.radius)
+        if m.height is not None:
+            self.heights.append(m.height)
+        self.box = m.box
 
     @property
     def label(self) -> str:
@@ -178,6 +213,9 @@ class _Track:
             hits=self.hits,
             last_seen=self.last_seen,
             votes=tuple(sorted(self.votes.items())),
+            radius=float(np.median(self.radii)) if self.radii else None,
+            height=float(np.median(self.heights)) if self.heights else None,
+            box=self.box,
         )
 
 
@@ -250,6 +288,7 @@ class MultiObjectTracker:
                 track.hits += 1
                 track.last_seen = t
                 track.votes[m.label] = track.votes.get(m.label, 0.0) + max(m.score, 1e-6)
+                track.add_size(m)
             else:
                 self._tracks.append(_Track(self._next_id, t, m, self.config))
                 self._next_id += 1

@@ -195,6 +195,7 @@ class ArmBase(abc.ABC):
         self.set_trajectory_time(moving_time, accel_time)
         self.last_error: str | None = None
         self._last_stream: tuple[float, Array] | None = None
+        self._motion_end = -math.inf  # _now() at which the current move's profile ends
 
     # ---------------------------------------------------------------- backend hooks
 
@@ -290,8 +291,32 @@ class ArmBase(abc.ABC):
             return self._fail(checked)
         self.last_error = None
         self._last_stream = None
+        self._motion_end = self._now() + checked.moving_time
         self._execute(checked, blocking)
         return True
+
+    @property
+    def moving(self) -> bool:
+        """True until the last commanded move's profile has ended (on the arm's clock)."""
+        return self._now() < self._motion_end
+
+    def motion_remaining(self) -> float:
+        """Seconds until the last commanded move's profile ends (0 when it has)."""
+        return max(self._motion_end - self._now(), 0.0)
+
+    def halt(self) -> None:
+        """Stop where the arm is now: cancel the move in progress and hold the current pose.
+
+        For a Stop button: takes effect at once and does not wait. The gripper is left as it
+        is, so a held object stays held.
+        """
+        self._last_stream = None
+        self._motion_end = -math.inf
+        self._halt()
+
+    def _halt(self) -> None:
+        """Hold the current position (default: stream the encoder reading as the target)."""
+        self._stream(np.clip(self.get_joint_positions(), self.model.lower, self.model.upper))
 
     def go_to_home_pose(
         self,

@@ -154,6 +154,17 @@ class SimArm(ArmBase):
         """True while a trajectory is being executed."""
         return self._trajectory is not None
 
+    def _halt(self) -> None:
+        """Freeze the servo targets where the profile is now (the servos track true angles)."""
+        with self.world.lock:
+            trajectory = self._trajectory
+            if trajectory is not None:
+                q, _ = trajectory.sample(self.world.time - self._t0)
+                self._trajectory = None
+            else:
+                q = self.world.joint_positions()
+            self._set_ctrl(q)
+
     def wait_until_idle(self) -> None:
         """Let the current non-blocking move finish (advances time in lockstep mode)."""
         trajectory = self._trajectory

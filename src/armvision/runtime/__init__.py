@@ -1,0 +1,1 @@
+"""The running system: threads, state snapshots, the task worker (see system.py)."""

@@ -1,0 +1,95 @@
+"""Building a :class:`~armvision.runtime.system.System` on the simulation or the real arm.
+
+Hardware modules (pyrealsense2, interbotix) are imported only by :func:`real_system`.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from armvision.calibration.store import StoredCalibration, load
+from armvision.config import Config
+from armvision.errors import CalibrationError
+from armvision.runtime.state import CalibrationStatus
+from armvision.runtime.system import System
+
+
+def calibration_status(stored: StoredCalibration) -> CalibrationStatus:
+    """What the runtime needs from a saved calibration."""
+    offsets = None if stored.joint_offsets is None else np.asarray(stored.joint_offsets)
+    return CalibrationStatus(
+        source=str(stored.path) if stored.path is not None else stored.source,
+        method=stored.method,
+        residual_mm=float(stored.residual_rms_mm),
+        T_base_cam=np.asarray(stored.T_base_cam, dtype=float),
+        joint_offsets_rad=offsets,
+    )
+
+
+def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
+    """The simulator's true camera pose, for tests that are not about calibration."""
+    return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))
+
+
+def sim_system(
+    config: Config,
+    seed: int = 0,
+    *,
+    mode: Literal["lockstep", "realtime"] = "lockstep",
+    scene=None,
+    calibration: CalibrationStatus | None = None,
+    **detectors,
+) -> System:
+    """A System on a fresh SimWorld of ``seed`` (``scene`` overrides the seed's scene).
+
+    Without ``calibration`` the system runs with the simulator's true camera pose (say so in
+    anything you report). The system owns the world, the arm and the camera.
+    """
+    from armvision.camera.sim import SimCamera
+    from armvision.robot.sim import SimArm
+    from armvision.sim.world import SimWorld
+
+    world = SimWorld(config, seed, mode=mode, scene=scene)
+    arm = SimArm(world)
+    camera = SimCamera(world)
+    if calibration is None:
+        calibration = sim_truth_calibration(world.T_base_cam())
+    return System(
+        config,
+        arm,
+        camera,
+        calibration,
+        clock=lambda: world.time,
+        lockstep=mode == "lockstep",
+        world=world,
+        owns=(arm, world),
+        **detectors,
+    )
+
+
+def load_calibration(path: str | os.PathLike[str]) -> CalibrationStatus:
+    """A saved calibration for the runtime; CalibrationError saying what to do if unusable."""
+    path = Path(path)
+    if not path.exists():
+        raise CalibrationError(
+            f"no calibration at {path}: run `armvision calibrate --real` first "
+            "(or pass --calibration PATH)"
+        )
+    return calibration_status(load(path))
+
+
+def real_system(config: Config, calibration_path: str | os.PathLike[str]) -> System:
+    """A System on the Interbotix arm and the RealSense camera (threads, wall clock)."""
+    calibration = load_calibration(calibration_path)
+    from armvision.camera.realsense import RealSenseCamera
+    from armvision.robot.interbotix import InterbotixArm
+
+    arm = InterbotixArm.from_config(config.robot)
+    camera = RealSenseCamera.from_config(config.camera)
+    # RealSense frame timestamps are host-clock milliseconds since the epoch (global time).
+    return System(config, arm, camera, calibration, clock=time.time, owns=(arm,))
