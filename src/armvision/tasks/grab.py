@@ -1,0 +1,396 @@
+"""Grab a bottle: the paper's grasp sequence with its safety rules.
+
+1. **Safe start.** Gripper open, end effector at ``grab.safe_pose`` (default (0.1, 0, 0.65) m,
+   gripper level, pointing along +x). The ViperX-300s reaches it; for an arm or a configured
+   pose it cannot reach, :func:`safe_start_pose` takes the nearest reachable one: the same
+   position with the nearest reachable orientation, else the position lowered in 2 cm steps.
+2. **A confirmed bottle track.** Wait (up to ``grab.track_wait_s``) for the fusion loop to
+   confirm a bottle whose size is known. Without a ``track_id`` the bottle taken is the
+   nearest to the base whose approach corridor (the line from the base, as wide as the open
+   gripper) is clear of every other tracked object.
+3. **Waypoint.** With the bottle at horizontal distance d from the base axis and bearing
+   yaw = atan2(y, x): the end effector goes to distance d - ``standoff`` (d if d < standoff)
+   on that line, at the grasp height, facing the bottle (yaw). Grasp height = the table
+   (bottle centre minus half its estimated height) + ``grasp_height_fraction`` x height.
+4. **Approach**: straight on to the bottle's axis at the grasp height, same yaw.
+5. **Close**, then **lift** ``grab.lift`` (10 cm), then **check** the grasp: the finger gap
+   must stay above the empty-closed gap by :data:`GRASP_MARGIN_M` (an empty gripper closes
+   to 0.021 m per finger; on a bottle of radius r it stops near r + 12.5 mm).
+
+Safety and robustness: a bottle nearer than ``min_base_distance`` to the base axis aborts the
+task; every motion's result is checked and a refused one is tried again after
+``retry_delay_s`` (``retries`` times) before the task fails with the arm's reason; the track is
+re-read before the waypoint and before the approach, and if the bottle moved by more than
+:data:`MOVED_M` the plan is made again; the whole task fails after ``timeout_s``. A failed
+grasp opens the gripper and backs off to the waypoint, so nothing is left pinched. Stop
+(TaskStopped) halts the arm where it is, gripper unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from armvision.config import GrabConfig
+from armvision.fusion.tracker import TrackState
+from armvision.geometry import make_T, rot_z, rpy_to_R
+from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
+from armvision.runtime.state import SystemState
+from armvision.runtime.system import TaskContext, TaskError
+
+#: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
+GRASP_MARGIN_M = 0.004
+#: A bottle that moved more than this between two reads of its track is re-planned for, metres.
+MOVED_M = 0.02
+#: Half-width of the corridor the open gripper sweeps on its way in: pads 89 mm apart plus
+#: the fingers themselves (Interbotix vx300s gripper), metres.
+GRIPPER_HALF_WIDTH_M = 0.06
+#: Above the waypoint, the gripper comes down from this far above the bottle's top, metres.
+HOVER_CLEARANCE_M = 0.08
+#: Shortest time for one segment of a straight-line move, seconds.
+SEGMENT_TIME_S = 0.6
+#: Consecutive points of a straight move may differ by at most this in any joint, rad.
+MAX_JOINT_STEP_RAD = 1.2
+#: Near objects, no joint moves faster than this share of its velocity limit.
+SPEED_FRACTION = 0.5
+#: How far the corridor extends behind the waypoint toward the base, metres.
+CORRIDOR_BACK_M = 0.05
+
+
+@dataclass(frozen=True)
+class GrabResult:
+    """What the grab did. ``ok`` only when the bottle is held after the lift.
+
+    ``track_id`` the bottle's track; ``target`` (x, y, z) the bottle centre the approach aimed
+    at, base frame; ``height`` its estimated height; ``grasp_z`` the grasp height; ``finger``
+    the finger position after the lift (m); ``stages`` the stages completed, in order;
+    ``retries`` motions retried; ``duration_s`` from start to end (clock seconds).
+    """
+
+    ok: bool
+    reason: str
+    track_id: int | None = None
+    target: tuple[float, float, float] | None = None
+    height: float | None = None
+    grasp_z: float | None = None
+    finger: float | None = None
+    stages: tuple[str, ...] = ()
+    retries: int = 0
+    duration_s: float = 0.0
+    replans: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "ok": self.ok,
+            "reason": self.reason,
+            "track_id": self.track_id,
+            "target": None if self.target is None else [round(v, 4) for v in self.target],
+            "height": None if self.height is None else round(self.height, 4),
+            "grasp_z": None if self.grasp_z is None else round(self.grasp_z, 4),
+            "finger": None if self.finger is None else round(self.finger, 4),
+            "stages": list(self.stages),
+            "retries": self.retries,
+            "replans": self.replans,
+            "duration_s": round(self.duration_s, 3),
+        }
+
+
+def safe_start_pose(position: tuple[float, float, float], model: ArmModel = VX300S) -> np.ndarray:
+    """``T_base_ee`` for the safe start: ``position`` with the gripper level, or the nearest
+    reachable pose (nearest orientation, else the position lowered in 2 cm steps)."""
+    T = make_T(np.eye(3), position)
+    seed = np.zeros(model.dof)
+    q, ok = ik(T, seed, model)
+    if ok:
+        return T
+    q, ok = ik(T, seed, model, position_priority=True)
+    if ok:
+        return fk(q, model)
+    x, y, z = position
+    for k in range(1, 40):
+        T = make_T(np.eye(3), (x, y, z - 0.02 * k))
+        q, ok = ik(T, seed, model, position_priority=True)
+        if ok:
+            return fk(q, model)
+    raise TaskError(
+        f"the safe start pose {position} and every pose below it are out of reach: "
+        "set grab.safe_pose to a reachable position"
+    )
+
+
+def corridor_clear(target: TrackState, others: list[TrackState], standoff: float) -> bool:
+    """True if no other object stands in the strip the open gripper sweeps to ``target``."""
+    p = np.asarray(target.p_base[:2], dtype=float)
+    d = float(np.linalg.norm(p))
+    if d < 1e-6:
+        return False
+    u = p / d
+    start = max(d - standoff - CORRIDOR_BACK_M, 0.0)
+    for other in others:
+        q = np.asarray(other.p_base[:2], dtype=float)
+        along = float(q @ u)
+        across = abs(float(q[0] * u[1] - q[1] * u[0]))
+        radius = other.radius if other.radius is not None else 0.04
+        if start - radius <= along <= d + radius and across < GRIPPER_HALF_WIDTH_M + radius:
+            return False
+    return True
+
+
+def choose_bottle(state: SystemState, standoff: float, track_id: int | None) -> TrackState | None:
+    """The bottle to take: ``track_id`` if given and tracked, else the nearest to the base
+    with a clear corridor (else simply the nearest). Only tracks whose height is known."""
+    bottles = [t for t in state.bottles() if t.height is not None]
+    if track_id is not None:
+        return next((t for t in bottles if t.id == track_id), None)
+    if not bottles:
+        return None
+    for bottle in bottles:
+        others = [t for t in state.tracks if t.id != bottle.id]
+        if corridor_clear(bottle, others, standoff):
+            return bottle
+    return bottles[0]
+
+
+@dataclass
+class _Plan:
+    track: TrackState
+    yaw: float
+    d: float
+    grasp_z: float
+    top: float
+    waypoint: np.ndarray = field(repr=False)
+    grasp: np.ndarray = field(repr=False)
+
+
+def plan_grasp(track: TrackState, cfg: GrabConfig) -> _Plan:
+    """Waypoint and grasp poses for a bottle track (see the module docstring)."""
+    x, y, z = (float(v) for v in track.p_base)
+    height = float(track.height) if track.height is not None else 2.0 * z
+    d = math.hypot(x, y)
+    yaw = math.atan2(y, x)
+    bottom = z - height / 2.0
+    grasp_z = bottom + cfg.grasp_height_fraction * height
+    d_way = d - cfg.standoff if d >= cfg.standoff else d
+    R = rot_z(yaw)
+    waypoint = make_T(R, (d_way * math.cos(yaw), d_way * math.sin(yaw), grasp_z))
+    grasp = make_T(R, (x, y, grasp_z))
+    return _Plan(track, yaw, d, grasp_z, bottom + height, waypoint, grasp)
+
+
+class _Grab:
+    def __init__(self, ctx: TaskContext, cfg: GrabConfig, track_id: int | None) -> None:
+        self.ctx, self.cfg, self.track_id = ctx, cfg, track_id
+        self.start = ctx.now()
+        self.stages: list[str] = []
+        self.retries = 0
+        self.replans = 0
+        self.plan: _Plan | None = None
+        self.last_target: np.ndarray | None = None
+
+    def result(self, ok: bool, reason: str, finger: float | None = None) -> GrabResult:
+        plan = self.plan
+        return GrabResult(
+            ok=ok,
+            reason=reason,
+            track_id=None if plan is None else plan.track.id,
+            target=None if plan is None else tuple(float(v) for v in plan.track.p_base),
+            height=None if plan is None else plan.track.height,
+            grasp_z=None if plan is None else plan.grasp_z,
+            finger=finger,
+            stages=tuple(self.stages),
+            retries=self.retries,
+            duration_s=self.ctx.now() - self.start,
+            replans=self.replans,
+        )
+
+    def remaining(self) -> float:
+        return self.cfg.timeout_s - (self.ctx.now() - self.start)
+
+    def check_time(self) -> None:
+        if self.remaining() <= 0.0:
+            raise _Abort(f"timed out after {self.cfg.timeout_s:.0f} s")
+
+    def move(
+        self,
+        what: str,
+        T: np.ndarray,
+        position_priority: bool = False,
+        moving_time: float | None = None,
+    ) -> None:
+        """A checked move, retried after a delay if refused; _Abort with the arm's reason.
+
+        The move takes ``moving_time`` (default ``grab.moving_time``) or longer if some joint
+        would otherwise go faster than :data:`SPEED_FRACTION` of its limit.
+        """
+        arm = self.ctx.arm
+        duration = moving_time or self.cfg.moving_time
+        q_now = arm.get_joint_positions()
+        q, ok = ik(T, q_now, arm.model)
+        if ok:
+            slowest = float(np.max(np.abs(q - q_now) / (SPEED_FRACTION * arm.model.velocity)))
+            duration = max(duration, slowest + arm.accel_time)
+        for attempt in range(self.cfg.retries + 1):
+            self.check_time()
+            if self.ctx.move_pose(
+                T,
+                moving_time=duration,
+                position_priority=position_priority,
+            ):
+                self.last_target = np.asarray(T, dtype=float)
+                return
+            if attempt < self.cfg.retries:
+                self.retries += 1
+                self.ctx.sleep(self.cfg.retry_delay_s)
+        raise _Abort(f"{what}: {self.ctx.arm.last_error or 'the arm refused the move'}")
+
+    def read_track(self) -> TrackState | None:
+        state = self.ctx.state()
+        if self.plan is None:
+            return choose_bottle(state, self.cfg.standoff, self.track_id)
+        return state.track(self.plan.track.id)
+
+    def replan_if_moved(self) -> None:
+        """Re-read the track; plan again if the bottle moved (abort if it is gone)."""
+        assert self.plan is not None
+        track = self.read_track()
+        if track is None:
+            raise _Abort("the bottle's track was lost")
+        if np.linalg.norm(track.p_base[:2] - self.plan.track.p_base[:2]) > MOVED_M:
+            self.replans += 1
+        self.plan = plan_grasp(track, self.cfg)
+        self.check_distance()
+
+    def check_distance(self) -> None:
+        assert self.plan is not None
+        if self.plan.d < self.cfg.min_base_distance:
+            raise _Abort(
+                f"the bottle is {100 * self.plan.d:.1f} cm from the base axis, nearer than "
+                f"{100 * self.cfg.min_base_distance:.0f} cm: not safe to grasp"
+            )
+
+    def move_straight(self, what: str, p_goal: np.ndarray, segments: int) -> None:
+        """Move the gripper along the straight line from the last target to ``p_goal`` in
+        ``segments`` moves (a single joint-space move between two poses near the table can
+        sweep the gripper through what stands there), facing the bottle, each point as level
+        as the arm allows (see :meth:`pose_at`)."""
+        assert self.last_target is not None
+        p_from = self.last_target[:3, 3].copy()
+        for k in range(1, segments + 1):
+            s = k / segments
+            T = self.pose_at((1 - s) * p_from + s * np.asarray(p_goal, dtype=float))
+            self.move(what, T, moving_time=max(self.cfg.moving_time / segments, SEGMENT_TIME_S))
+
+    def pose_at(self, p: np.ndarray) -> np.ndarray:
+        """The gripper at ``p`` facing the bottle (yaw), level if the arm reaches it so, else
+        pitched down just enough.
+
+        Near the base a level gripper cannot reach low points; pitching it down about its own
+        y axis keeps the wrist unflipped, where "any reachable orientation" may turn the
+        forearm and wrist half a turn and sweep the table. Solutions are sought next to the
+        last target's, so consecutive points do not jump between IK branches.
+        """
+        assert self.plan is not None
+        arm = self.ctx.arm
+        seed = (
+            arm.get_joint_positions()
+            if self.last_target is None
+            else ik(self.last_target, arm.get_joint_positions(), arm.model)[0]
+        )
+        for pitch_deg in range(0, 91, 5):
+            T = make_T(rpy_to_R(0.0, math.radians(pitch_deg), self.plan.yaw), p)
+            q, ok = ik(T, seed, arm.model)
+            if (
+                ok
+                and abs(q[3]) < math.pi / 2
+                and abs(q[5]) < math.pi / 2
+                and np.max(np.abs(q - seed)) < MAX_JOINT_STEP_RAD
+            ):
+                return T
+        return make_T(rot_z(self.plan.yaw), p)  # unreachable: the move will say so
+
+    def finger(self) -> float:
+        return float(self.ctx.arm.gripper.get_finger_position())
+
+    def run(self) -> GrabResult:
+        ctx, cfg = self.ctx, self.cfg
+        ctx.progress(0.02, "opening the gripper")
+        ctx.open_gripper()
+        ctx.progress(0.08, "going to the safe start pose")
+        self.move("safe start pose", safe_start_pose(cfg.safe_pose, ctx.arm.model))
+        self.stages.append("safe_start")
+
+        ctx.progress(0.25, "waiting for a confirmed bottle track")
+        found = ctx.wait_until(
+            lambda: self.read_track() is not None,
+            min(cfg.track_wait_s, max(self.remaining(), 0.0)),
+        )
+        if not found:
+            which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
+            raise _Abort(
+                f"no confirmed track of {which} within {cfg.track_wait_s:.0f} s: is a bottle "
+                "in the camera's view and is object detection on?"
+            )
+        track = self.read_track()
+        assert track is not None
+        self.plan = plan_grasp(track, cfg)
+        self.check_distance()
+        self.stages.append("bottle_found")
+
+        ctx.progress(0.4, f"to the waypoint {100 * cfg.standoff:.0f} cm short of the bottle")
+        self.replan_if_moved()
+        # Come down onto the waypoint from above it, clear of everything standing nearby.
+        hover = self.plan.waypoint[:3, 3].copy()
+        hover[2] = max(hover[2], self.plan.top + HOVER_CLEARANCE_M)
+        self.move("above the waypoint", self.pose_at(hover))
+        self.move_straight("waypoint", self.plan.waypoint[:3, 3], segments=2)
+        self.stages.append("waypoint")
+
+        ctx.progress(0.55, "final approach")
+        self.replan_if_moved()
+        self.move_straight("approach", self.plan.grasp[:3, 3], segments=3)
+        self.stages.append("approach")
+
+        ctx.progress(0.7, "closing the gripper")
+        ctx.close_gripper()
+        empty = ctx.arm.model.finger_limits[0]
+        if self.finger() < empty + GRASP_MARGIN_M:
+            self.back_off()
+            raise _Abort("the gripper closed on nothing: the bottle was not between the fingers")
+        self.stages.append("closed")
+
+        ctx.progress(0.8, f"lifting {100 * cfg.lift:.0f} cm")
+        lifted = self.plan.grasp.copy()
+        lifted[2, 3] += cfg.lift
+        self.move_straight("lift", lifted[:3, 3], segments=2)
+        self.stages.append("lifted")
+        finger = self.finger()
+        if finger < empty + GRASP_MARGIN_M:
+            raise _Abort("the bottle slipped out during the lift")
+        self.stages.append("checked")
+        ctx.progress(1.0, "holding the bottle")
+        return self.result(True, "bottle grasped and lifted", finger)
+
+    def back_off(self) -> None:
+        """Open the gripper and retreat to the waypoint, leaving nothing pinched."""
+        self.ctx.open_gripper()
+        if self.plan is not None:
+            self.ctx.move_pose(
+                self.pose_at(self.plan.waypoint[:3, 3]), moving_time=self.cfg.moving_time
+            )
+
+
+class _Abort(Exception):  # noqa: N818 - control flow inside this module
+    """Ends the grab with a reason (becomes GrabResult.ok = False)."""
+
+
+def grab(ctx: TaskContext, track_id: int | None = None) -> GrabResult:
+    """Grasp a bottle and lift it (see the module docstring); ``track_id`` picks the bottle."""
+    job = _Grab(ctx, ctx.config.grab, track_id)
+    try:
+        return job.run()
+    except _Abort as exc:
+        finger = job.finger()
+        return job.result(False, str(exc), finger)
