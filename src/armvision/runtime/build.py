@@ -31,6 +31,18 @@ def calibration_status(stored: StoredCalibration) -> CalibrationStatus:
     )
 
 
+def result_status(result) -> CalibrationStatus:
+    """The runtime's view of a fresh :class:`~armvision.calibration.procedure.CalibrationResult`."""
+    fit = result.fit
+    return CalibrationStatus(
+        source=f"calibrated now ({len(result.samples)} samples)",
+        method=result.method,
+        residual_mm=1000.0 * float(fit.rms_m),
+        T_base_cam=np.asarray(fit.T_base_cam, dtype=float),
+        joint_offsets_rad=None if fit.joint_offsets is None else np.asarray(fit.joint_offsets),
+    )
+
+
 def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
     """The simulator's true camera pose, for tests that are not about calibration."""
     return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))
@@ -43,19 +55,22 @@ def sim_system(
     mode: Literal["lockstep", "realtime"] = "lockstep",
     scene=None,
     calibration: CalibrationStatus | None = None,
+    arm_seed: object = None,
     **detectors,
 ) -> System:
     """A System on a fresh SimWorld of ``seed`` (``scene`` overrides the seed's scene).
 
     Without ``calibration`` the system runs with the simulator's true camera pose (say so in
-    anything you report). The system owns the world, the arm and the camera.
+    anything you report). ``arm_seed`` draws the arm's encoder zero offsets (default: from
+    ``seed``); give the one a calibration was made with to keep "the same arm" across scenes.
+    The system owns the world, the arm and the camera.
     """
     from armvision.camera.sim import SimCamera
     from armvision.robot.sim import SimArm
     from armvision.sim.world import SimWorld
 
     world = SimWorld(config, seed, mode=mode, scene=scene)
-    arm = SimArm(world)
+    arm = SimArm(world, seed=arm_seed)
     camera = SimCamera(world)
     if calibration is None:
         calibration = sim_truth_calibration(world.T_base_cam())
