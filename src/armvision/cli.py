@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from armvision import __version__
+from armvision.cli_tasks import add_parsers as add_task_parsers
 from armvision.config import (
     CalibrationConfig,
     Config,
@@ -595,6 +596,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calib.add_argument("--json", action="store_true", help="one JSON object on stdout")
     calib.set_defaults(func=cmd_eval_calibration)
+    add_task_parsers(sub, eval_sub)
     return parser
 
 

@@ -43,6 +43,21 @@ def result_status(result) -> CalibrationStatus:
     )
 
 
+def calibrate_empty_table(config: Config, seed: int, T_base_cam: np.ndarray | None = None):
+    """Calibrate in the simulation as a user would: an empty table, the same camera placement
+    (``T_base_cam``, default the configured one) and the same arm (encoder offsets of
+    ``seed``). Returns (CalibrationStatus, CalibrationResult with the truth filled in)."""
+    import dataclasses
+
+    from armvision.calibration.procedure import calibrate_sim
+
+    empty = dataclasses.replace(
+        config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0, loose_tags=0)
+    )
+    result = calibrate_sim(empty, seed, T_base_cam=T_base_cam)
+    return result_status(result), result
+
+
 def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
     """The simulator's true camera pose, for tests that are not about calibration."""
     return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))

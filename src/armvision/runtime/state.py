@@ -117,9 +117,7 @@ class HealthMeter:
             else:
                 rate = 0.0
             age = None if self._last_output is None else max(now - self._last_output, 0.0)
-            stale = (
-                enabled and alive and math.isfinite(stale_s) and (age is None or age > stale_s)
-            )
+            stale = enabled and alive and math.isfinite(stale_s) and (age is None or age > stale_s)
             return ThreadHealth(
                 self.name,
                 enabled,

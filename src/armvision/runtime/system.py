@@ -70,6 +70,8 @@ STAGES = ("camera", *DETECTORS, "fusion", "motion")
 GRIPPER_TIME_S = 1.0
 #: Longest a task's wait goes without looking at the stop flag (realtime), seconds.
 POLL_S = 0.01
+#: The fusion thread makes up for at most this much lost time by running cycles back to back.
+FUSION_CATCH_UP_S = 0.1
 #: A bottle detection belongs to the nearest bottle track within this distance, metres.
 LIQUID_ASSOCIATION_M = 0.05
 
@@ -343,6 +345,7 @@ class System:
         self._rates = {"tags": rt.tag_hz, "objects": rt.object_hz, "liquid": rt.liquid_hz}
         self._levels: dict[int, deque[tuple[float, LiquidLevel]]] = {}
         self._threads: dict[str, threading.Thread] = {}
+        self.fusion_stalls = 0  # times the fusion thread fell more than FUSION_CATCH_UP_S behind
         self._stop = threading.Event()
         self._started = False
         self._closed = False
@@ -573,13 +576,17 @@ class System:
             self._stop.wait(period)
 
     def _fusion_thread(self) -> None:
+        """Cycles on a fixed grid of 1/rate_hz. A cycle that starts late (another thread held
+        the interpreter) is followed by the missed ones at once, up to FUSION_CATCH_UP_S of
+        them, so the rate holds on average; a longer stall is skipped and counted."""
         period = 1.0 / self.config.fusion.rate_hz
         next_time = time.monotonic()
         while not self._stop.is_set():
             self._guard("fusion", self.fusion.step)
             next_time += period
             delay = next_time - time.monotonic()
-            if delay < -period:  # more than a cycle behind: do not try to catch up
+            if delay < -FUSION_CATCH_UP_S:
+                self.fusion_stalls += 1
                 next_time = time.monotonic()
             elif delay > 0:
                 self._stop.wait(delay)
@@ -670,8 +677,13 @@ class System:
         job = self._submitted.get(task_id)
         if job is None:
             raise ArmvisionError(f"no task {task_id}")
-        if not job.done.wait(timeout_s):
-            raise ArmvisionError(f"task {task_id} ({job.name}) did not end within {timeout_s} s")
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        # Short waits, so Ctrl-C reaches the caller at once.
+        while not job.done.wait(0.2):
+            if deadline is not None and time.monotonic() > deadline:
+                raise ArmvisionError(
+                    f"task {task_id} ({job.name}) did not end within {timeout_s} s"
+                )
         assert job.status is not None
         return job.status
 

@@ -1,0 +1,244 @@
+"""``armvision demo``, ``grab``, ``follow``, ``analyze`` and ``eval grab|follow``.
+
+The task commands build the running system (:mod:`armvision.runtime`) on the simulation
+(``--sim``, default; lockstep unless ``--realtime``) or on the real arm and camera
+(``--real``), let the stages look for a moment, run one task and print its report. Ctrl-C
+stops the task (the arm halts where it is) and shuts the system down cleanly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+from armvision.config import Config
+
+#: Seconds the stages run before a task starts, so tracks are confirmed and tags seen.
+WARM_UP_S = 1.5
+
+
+def _say(message: str) -> None:
+    print(f"armvision: {message}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------- armvision demo
+
+
+def cmd_demo(args: argparse.Namespace, config: Config) -> int:
+    from armvision.demo import run_demo
+
+    report = run_demo(config, args.seed, args.out, args.calibration, say=_say)
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    else:
+        print(report.table())
+        if report.image_path is not None:
+            print(f"annotated image: {report.image_path}")
+    return 0 if report.ok else 1
+
+
+# --------------------------------------------------------------------------- task commands
+
+
+def _system(args: argparse.Namespace, config: Config):
+    """The System the task commands run on (see the module docstring)."""
+    from armvision.runtime import build
+
+    if args.real:
+        return build.real_system(config, args.calibration or config.calibration.file)
+    if args.calibration == "truth":
+        calibration = None  # the simulator's camera pose
+    elif args.calibration:
+        calibration = build.load_calibration(args.calibration)
+    else:
+        from armvision.sim.world import generate_scene
+
+        _say("calibrating the simulated camera with the gripper tag (empty table)")
+        T_base_cam = generate_scene(config, args.seed).T_base_cam
+        calibration, _ = build.calibrate_empty_table(config, args.seed, T_base_cam)
+    mode = "realtime" if args.realtime else "lockstep"
+    return build.sim_system(config, args.seed, mode=mode, calibration=calibration)
+
+
+def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any) -> int:
+    system = _system(args, config)
+    with system:
+        if system.lockstep:
+            system.pump(system.clock() + WARM_UP_S)
+        else:
+            time.sleep(WARM_UP_S)
+        _say(f"running {name}" + (" (Ctrl-C stops it)" if not system.lockstep else ""))
+        try:
+            status = system.run_task(name, fn, **kwargs)
+        except KeyboardInterrupt:
+            system.stop_task()
+            _say("stopped: the arm holds where it is")
+            raise
+        truth = _sim_truth(system) if not args.real else None
+    report = {"task": status.to_dict(), "truth": truth}
+    if args.json:
+        print(json.dumps(report, indent=2, default=float))
+    else:
+        print(f"{name}: {status.phase}" + (f" ({status.error})" if status.error else ""))
+        for key, value in (status.result or {}).items():
+            print(f"  {key:<16} {value}")
+        if truth:
+            print("simulator truth:")
+            for key, value in truth.items():
+                print(f"  {key:<16} {value}")
+    return 0 if status.phase == "succeeded" else 1
+
+
+def _sim_truth(system) -> dict[str, Any]:
+    world = system.world
+    return {
+        "held_object": world.held_object(),
+        "objects": [
+            {
+                "name": o.spec.name,
+                "kind": o.spec.kind,
+                "position": [round(float(v), 4) for v in o.T_base_obj[:3, 3]],
+                "fill": round(o.spec.fill, 4),
+                "liquid": o.spec.liquid,
+            }
+            for o in world.objects()
+        ],
+    }
+
+
+def cmd_grab(args: argparse.Namespace, config: Config) -> int:
+    from armvision.tasks.grab import grab
+
+    return _run(args, config, "grab", grab, track_id=args.track)
+
+
+def cmd_analyze(args: argparse.Namespace, config: Config) -> int:
+    from armvision.tasks.analyze import analyze
+
+    return _run(args, config, "analyze", analyze, track_id=args.track)
+
+
+def cmd_follow(args: argparse.Namespace, config: Config) -> int:
+    from armvision.tasks.follow import follow
+
+    return _run(
+        args,
+        config,
+        "follow",
+        follow,
+        target=args.target,
+        tag_id=args.tag_id,
+        track_id=args.track,
+        duration_s=args.duration,
+        mode=args.mode,
+    )
+
+
+# --------------------------------------------------------------------------- evals
+
+
+def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
+    from armvision.cli import _print_summary
+    from armvision.eval.grab import evaluate_grab
+
+    def progress(done: int, total: int, row: dict[str, Any]) -> None:
+        verdict = "ok" if row["success"] else f"FAILED ({row['task_error'] or row['held']})"
+        _say(f"trial {done}/{total}, scene {row['seed']}: {verdict}")
+
+    result = evaluate_grab(
+        config, args.trials, args.seed, args.calibration, None if args.json else progress
+    )
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    _print_summary(f"grab, {args.trials} random scenes from seed {args.seed}", result["summary"])
+    for row in result["failures"]:
+        print(f"  scene {row['seed']}: {row['task_phase']} {row['task_error'] or ''}")
+    return 0
+
+
+def cmd_eval_follow(args: argparse.Namespace, config: Config) -> int:
+    from armvision.cli import _print_summary
+    from armvision.eval.follow import evaluate_follow
+
+    kwargs = {} if args.duration is None else {"duration_s": args.duration}
+    result = evaluate_follow(config, seed=args.seed, **kwargs)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    _print_summary(f"follow a tag on a circle, seed {args.seed}", result["summary"])
+    return 0
+
+
+# --------------------------------------------------------------------------- parsers
+
+
+def _where(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
+    where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
+    parser.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    parser.add_argument(
+        "--calibration",
+        metavar="PATH",
+        help="calibration file (real default: calibration.file); in simulation the default "
+        "is to calibrate now, and 'truth' uses the simulator's camera pose",
+    )
+    parser.add_argument(
+        "--realtime",
+        action="store_true",
+        help="simulation on the wall clock, threads as on the real arm",
+    )
+    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+
+
+def add_parsers(sub: Any, eval_sub: Any) -> None:
+    """Add the demo, task and task-eval commands to ``armvision``'s parsers."""
+    demo = sub.add_parser(
+        "demo", help="the whole system on a simulated scene, with a report against the truth"
+    )
+    demo.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    demo.add_argument("--out", default="out/demo", metavar="DIR", help="where the image goes")
+    demo.add_argument("--calibration", metavar="PATH", help="load this instead of calibrating")
+    demo.add_argument("--json", action="store_true", help="the report as JSON")
+    demo.set_defaults(func=cmd_demo)
+
+    grab = sub.add_parser("grab", help="grasp a bottle and lift it")
+    _where(grab)
+    grab.add_argument("--track", type=int, help="bottle track id (default: nearest reachable)")
+    grab.set_defaults(func=cmd_grab)
+
+    analyze = sub.add_parser("analyze", help="measure a bottle's liquid level")
+    _where(analyze)
+    analyze.add_argument("--track", type=int, help="bottle track id (default: nearest)")
+    analyze.set_defaults(func=cmd_analyze)
+
+    follow = sub.add_parser("follow", help="follow a tag or a bottle with the gripper")
+    _where(follow)
+    follow.add_argument("--target", choices=("tag", "bottle"), default="tag")
+    follow.add_argument("--tag-id", type=int, help="tag to follow (default follow.tag_id)")
+    follow.add_argument("--track", type=int, help="bottle track id (default: nearest)")
+    follow.add_argument("--duration", type=float, help="seconds (default follow.duration_s)")
+    follow.add_argument("--mode", choices=("servo", "blocking"), default="servo")
+    follow.set_defaults(func=cmd_follow)
+
+    grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")
+    grab_eval.add_argument("--trials", type=int, default=50, help="scenes (default 50)")
+    grab_eval.add_argument("--seed", type=int, default=0, help="first scene seed (default 0)")
+    grab_eval.add_argument(
+        "--calibration",
+        choices=("calibrate", "truth"),
+        default="calibrate",
+        help="calibrate once with the tag (default) or use the simulator's camera pose",
+    )
+    grab_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    grab_eval.set_defaults(func=cmd_eval_grab)
+
+    follow_eval = eval_sub.add_parser("follow", help="servo vs blocking tag following")
+    follow_eval.add_argument("--seed", type=int, default=0)
+    follow_eval.add_argument("--duration", type=float, help="seconds per mode")
+    follow_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    follow_eval.set_defaults(func=cmd_eval_follow)
