@@ -23,10 +23,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
-# Until the tasks land: show what works here, then build a scene, move the arm home, snapshot it.
+# The whole system on a simulated scene: calibrate, detect, analyse, grab; a report against the truth.
 demo: setup
-	$(BIN)/armvision info
-	$(BIN)/armvision sim snapshot --seed 0 --out out/demo
+	$(BIN)/armvision demo --seed 0 --out out/demo
 
 test: setup
 	$(BIN)/python -m pytest

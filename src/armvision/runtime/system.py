@@ -619,6 +619,12 @@ class System:
             self.start()
         fusion_period = 1.0 / self.config.fusion.rate_hz
         half_frame = 0.5 / float(self.config.camera.fps)
+        if self._next_fusion < self.clock() - fusion_period:
+            # The clock moved outside pump() (a blocking arm call): the cycles that time held
+            # are gone, as on a stalled thread; replaying them all at one instant would only
+            # stack identical encoder readings into the filter.
+            self.fusion_stalls += 1
+            self._next_fusion = self.clock()
         while True:
             due = [self._due[n] for n in DETECTORS if self.enabled[n]]
             frame_due = min(due) if due else math.inf

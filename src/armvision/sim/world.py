@@ -529,7 +529,7 @@ def _loose_tag_xml(tag: LooseTag, index: int) -> str:
     T_world_plate = T_WORLD_BASE @ make_T(rot_z(tag.yaw), [tag.x, tag.y, 0.001])
     R_plate_tag = R_TAG_PLATE.T
     return (
-        f'<body name="loose_tag{index}" pos="{_f(T_world_plate[:3, 3])}" '
+        f'<body name="loose_tag{index}" mocap="true" pos="{_f(T_world_plate[:3, 3])}" '
         f'quat="{_f(quat_wxyz(T_world_plate[:3, :3]))}">\n'
         f'      <geom type="mesh" mesh="loose_tag{index}" material="tag{tag.tag_id}" '
         'contype="0" conaffinity="0" density="0"/>\n'
@@ -962,6 +962,32 @@ class SimWorld:
             self.data.qpos[qadr : qadr + 3] = T_world_obj[:3, 3]
             self.data.qpos[qadr + 3 : qadr + 7] = quat_wxyz(T_world_obj[:3, :3])
             self.data.qvel[dofadr : dofadr + 6] = 0.0
+            mujoco.mj_forward(self.model, self.data)
+
+    def set_loose_tag_pose(self, tag_id: int, T_base_tag: ArrayLike) -> None:
+        """Put loose tag ``tag_id`` at ``T_base_tag`` (AprilTag convention: z into the tag).
+
+        Loose tags are mocap bodies: they go exactly where they are put and push nothing. To
+        move one along a path, call this from a controller (:meth:`add_controller`) every step.
+        """
+        index = next((k for k, t in enumerate(self.scene.loose_tags) if t.tag_id == tag_id), None)
+        if index is None:
+            raise SimulationError(
+                f"no loose tag {tag_id}; the scene has {[t.tag_id for t in self.scene.loose_tags]}"
+            )
+        T = np.asarray(T_base_tag, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise SimulationError(f"T_base_tag must be a finite 4x4 matrix, got shape {T.shape}")
+        if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
+            raise SimulationError("T_base_tag's rotation is not orthonormal: build it with make_T")
+        # The body is the plate; its site (the tag frame) sits at the body origin turned by
+        # R_TAG_PLATE^T, so the plate's rotation is R_base_tag R_TAG_PLATE.
+        T_world_plate = T_WORLD_BASE @ make_T(T[:3, :3] @ R_TAG_PLATE, T[:3, 3])
+        body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"loose_tag{index}")
+        mocap = self.model.body_mocapid[body]
+        with self.lock:
+            self.data.mocap_pos[mocap] = T_world_plate[:3, 3]
+            self.data.mocap_quat[mocap] = quat_wxyz(T_world_plate[:3, :3])
             mujoco.mj_forward(self.model, self.data)
 
     @property

@@ -1,0 +1,802 @@
+"""Follow a tag or a bottle with the end effector: a servo loop, or the paper's blocking loop.
+
+**Where the end effector goes.** For a target at ``p`` (base frame) at horizontal distance d
+from the base axis and bearing yaw = atan2(y, x), the end effector keeps ``follow.standoff``
+back from it on the line from the base, ``follow.height_offset`` above it:
+
+    p_ee = (d_ee cos yaw, d_ee sin yaw, z + height_offset),  d_ee = max(d - standoff, D_MIN_M)
+
+and points at it: its x axis (the gripper's approach axis) along p - p_ee, no roll. With the
+defaults (12 cm back, 10 cm up) the gripper looks down at the target at 40 degrees, from the
+robot's side, so it never hides a target from a camera standing in front of the robot.
+:func:`desired_ee_pose` is this rule; the follow evaluation scores against it.
+
+**Servo mode** (default): every 1/``follow.rate_hz`` seconds (50 Hz; at least 30 Hz):
+
+1. the newest target measurement goes into a :class:`TargetEstimator` (tag: ``T_base_cam @
+   T_cam_tag`` of the tag with ``tag_id`` in the newest processed frame; bottle: the fusion
+   loop's track, which has a velocity already);
+2. the desired pose at the estimated current target position, and its rate of change for the
+   estimated target velocity (the feed-forward twist);
+3. a Cartesian command twist = feed-forward + ``follow.gain`` x pose error (position error and
+   the rotation vector of R_des R^T), the linear part limited to ``follow.max_speed`` and
+   ``follow.max_accel``, the angular part to :data:`MAX_ANGULAR_SPEED` and
+   :data:`MAX_ANGULAR_ACCEL`;
+4. damped least-squares differential IK on the ee-point Jacobian,
+   qdot = W J^T (J W J^T + Lambda)^-1 V with W weighting each joint by its velocity limit and
+   the damping ``follow.damping`` applied only to near-singular directions (singular value
+   under :data:`DAMPING_THRESHOLD`; the follow poses are near the wrist singularity, the
+   forearm-roll and wrist-rotate axes almost aligned); joints at a limit moving further out
+   are locked, and qdot is scaled so no joint exceeds :data:`JOINT_SPEED_FRACTION` of its
+   velocity limit;
+5. ``ctx.stream(q + qdot dt)``.
+
+The loop integrates its own commanded joint vector q (started from the encoders) and closes
+the Cartesian loop on fk(q), not on the encoder readings: the servos track the commanded angle,
+so this is free of encoder noise and of the encoders' zero offsets. The encoders are checked
+every cycle so an arm that is not following the commands (blocked, torque off) stops the task
+(:data:`DIVERGENCE_RAD`). At the end (duration, or target lost) the command velocity ramps down
+at the acceleration limits before the task returns, so the arm stops smoothly.
+
+**Blocking mode** (``mode="blocking"``, the paper's loop, for comparison): read the newest
+target position, ``ctx.move_pose`` to the desired pose (Interbotix timing: ``moving_time``,
+default the arm's 2 s, with ``position_priority``), wait for the move to end, repeat.
+
+**Stopping.** After ``follow.duration_s`` (ok), or when the target has not been seen for
+``follow.lost_timeout_s`` (ok False, reason "target lost: ..."); a target never seen within
+that time after the start counts as lost too. Stop raises TaskStopped (the system halts the
+arm and reports the task stopped). A target is "seen" at the capture time of the frame it
+was detected in (tags) or its track's newest detection (bottles).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from armvision.config import FollowConfig
+from armvision.geometry import make_T, rpy_to_R, skew
+from armvision.robot.base import STREAM_MAX_STEP_S
+from armvision.robot.kinematics import VX300S, ArmModel, fk, jacobian_space
+from armvision.runtime.state import SystemState
+from armvision.runtime.system import TaskContext, TaskError
+
+Array = NDArray[np.float64]
+
+#: The end effector keeps at least this far from the base axis (the waist is singular on it).
+D_MIN_M = 0.10
+#: Only directions of the ee-point Jacobian whose singular value is below this are damped
+#: (see :func:`damped_least_squares`); the follow poses have one near 0.02 (the forearm-roll
+#: and wrist-rotate axes nearly aligned) and the rest above 0.11.
+DAMPING_THRESHOLD = 0.1
+#: The end effector's angular speed and acceleration limits, rad/s and rad/s^2.
+MAX_ANGULAR_SPEED = 1.5
+MAX_ANGULAR_ACCEL = 6.0
+#: Streamed joint velocities stay below this fraction of each joint's velocity limit, leaving
+#: room for the arm's stream check (velocity limit x elapsed time) on a jittery clock.
+JOINT_SPEED_FRACTION = 0.5
+#: A joint this close to a limit (rad) is locked when qdot would push it further out.
+JOINT_LIMIT_MARGIN_RAD = 0.02
+#: Target measurements (position, time) are fitted with a polynomial over this window, s.
+ESTIMATOR_WINDOW_S = 0.4
+#: A quadratic fit needs (measurements, span s) at least these; a straight line these.
+ESTIMATOR_QUADRATIC = (6, 0.2)
+ESTIMATOR_LINEAR = (3, 0.1)
+#: A target is extrapolated at most this long past its newest measurement, s; later it is
+#: held where that put it (with no velocity feed-forward) until it is seen again or lost.
+#: It covers the camera-to-detection latency (a frame or two, more on a slow machine) and
+#: a dropped frame or two; a target that stops dead is overshot by at most v x this.
+MAX_EXTRAPOLATION_S = 0.2
+#: Commanded and measured joint angles this far apart (rad) mean the arm is not following.
+DIVERGENCE_RAD = 0.25
+#: The ramp-down at the end takes at most this long, s (max_speed / max_accel is 0.25 s).
+RAMP_DOWN_MAX_S = 1.0
+#: Progress is reported this often (clock seconds).
+PROGRESS_EVERY_S = 1.0
+
+Mode = Literal["servo", "blocking"]
+TargetKind = Literal["tag", "bottle"]
+StopCause = Literal["duration", "lost"]
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def desired_ee_pose(p_target: ArrayLike, standoff: float, height_offset: float) -> Array:
+    """``T_base_ee`` for following a target at ``p_target`` (base frame; module docstring).
+
+    ``standoff`` m back toward the base on the horizontal line from the base axis (never
+    nearer than :data:`D_MIN_M` to that axis), ``height_offset`` m above the target, the
+    gripper's x axis pointing at the target. Example: a target at (0.5, 0, 0) with 0.12 / 0.10
+    gives the end effector at (0.38, 0, 0.10) pitched down atan(0.10 / 0.12) = 39.8 degrees.
+    """
+    p = np.asarray(p_target, dtype=float)
+    d = math.hypot(p[0], p[1])
+    yaw = math.atan2(p[1], p[0]) if d > 1e-9 else 0.0
+    d_ee = max(d - standoff, D_MIN_M)
+    p_ee = np.array([d_ee * math.cos(yaw), d_ee * math.sin(yaw), p[2] + height_offset])
+    horizontal = d - d_ee  # along the bearing, toward the target (negative: it is behind)
+    pitch = math.atan2(height_offset, horizontal)  # positive pitch points the gripper down
+    return make_T(rpy_to_R(0.0, pitch, yaw), p_ee)
+
+
+def pose_twist(T_from: Array, T_to: Array, dt: float) -> Array:
+    """The constant twist (omega, p_dot) taking ``T_from`` to ``T_to`` in ``dt``: the rotation
+    vector of R_to R_from^T (space frame) and the displacement of the origin, over ``dt``."""
+    w = Rotation.from_matrix(T_to[:3, :3] @ T_from[:3, :3].T).as_rotvec()
+    return np.concatenate([w, T_to[:3, 3] - T_from[:3, 3]]) / dt
+
+
+def desired_pose_and_twist(
+    p_target: ArrayLike, v_target: ArrayLike, standoff: float, height_offset: float
+) -> tuple[Array, Array]:
+    """:func:`desired_ee_pose` at ``p_target`` and its rate of change (omega, p_dot) for a
+    target moving at ``v_target`` m/s, by a central difference over +-5 ms."""
+    p, v = np.asarray(p_target, dtype=float), np.asarray(v_target, dtype=float)
+    T_des = desired_ee_pose(p, standoff, height_offset)
+    if not np.any(v):
+        return T_des, np.zeros(6)
+    h = 0.005
+    before = desired_ee_pose(p - v * h, standoff, height_offset)
+    after = desired_ee_pose(p + v * h, standoff, height_offset)
+    return T_des, pose_twist(before, after, 2.0 * h)
+
+
+# --------------------------------------------------------------------------- servo math
+
+
+def ee_point_jacobian(q: ArrayLike, model: ArmModel = VX300S) -> Array:
+    """6 x n Jacobian with rows (omega, p_dot): the ee's angular velocity and the velocity of
+    the ee point p, both in the base frame.
+
+    From the space Jacobian J_s = (J_w; J_v) (MR eq. 5.11): p_dot = v_s + omega x p, so the
+    point rows are J_v - [p] J_w.
+    """
+    q = np.asarray(q, dtype=float)
+    J_s = jacobian_space(q, model)
+    p = fk(q, model)[:3, 3]
+    return np.vstack([J_s[:3], J_s[3:] - skew(p) @ J_s[:3]])
+
+
+def damped_least_squares(
+    J: Array,
+    twist: ArrayLike,
+    damping: float,
+    weights: ArrayLike | None = None,
+    threshold: float | None = None,
+) -> Array:
+    """Joint velocities for twist V by damped least squares, per singular direction.
+
+    With J W^1/2 = U diag(sigma) V^T (W = diag(``weights``), default ones, lets fast joints
+    take more of the motion): qdot = W^1/2 sum_i sigma_i / (sigma_i^2 + lambda_i^2) v_i u_i^T V.
+    With ``threshold`` None every lambda_i is ``damping``, which is the classic
+    qdot = W J^T (J W J^T + lambda^2 I)^-1 V, minimising |J qdot - V|^2 + lambda^2
+    |qdot|^2_(W^-1) (Wampler 1986; Nakamura & Hanafusa 1986): near a singularity the error in
+    V grows instead of qdot. With a ``threshold`` only directions with sigma_i below it are
+    damped, lambda_i^2 = damping^2 (1 - (sigma_i / threshold)^2) (numerical filtering,
+    Maciejewski & Klein 1988), so away from singularities the twist is met exactly. Example:
+    J = 2 I, damping 0.5, no threshold: qdot = 2 / 4.25 V.
+    """
+    J = np.asarray(J, dtype=float)
+    V = np.asarray(twist, dtype=float)
+    w_sqrt = np.sqrt(np.ones(J.shape[1]) if weights is None else np.asarray(weights, dtype=float))
+    U, sigma, Vt = np.linalg.svd(J * w_sqrt, full_matrices=False)
+    if threshold is None:
+        lam2 = np.full_like(sigma, damping**2)
+    else:
+        lam2 = damping**2 * np.clip(1.0 - (sigma / threshold) ** 2, 0.0, None)
+    denominator = sigma**2 + lam2
+    gain = np.divide(sigma, denominator, out=np.zeros_like(sigma), where=denominator > 0.0)
+    return w_sqrt * (Vt.T @ (gain * (U.T @ V)))
+
+
+def limit_rate(v: Array, v_prev: Array, max_norm: float, max_change: float) -> tuple[Array, bool]:
+    """``v`` scaled to at most ``max_norm``, then moved to within ``max_change`` of ``v_prev``
+    (both Euclidean norms); and whether either limit bit."""
+    limited = False
+    n = float(np.linalg.norm(v))
+    if n > max_norm:
+        v = v * (max_norm / n)
+        limited = True
+    dv = v - v_prev
+    n = float(np.linalg.norm(dv))
+    if n > max_change:
+        v = v_prev + dv * (max_change / n)
+        limited = True
+    return v, limited
+
+
+@dataclass(frozen=True)
+class ServoGains:
+    """The servo loop's gains and limits (see :class:`~armvision.config.FollowConfig`).
+
+    ``gain`` 1/s on position and rotation errors; ``damping`` lambda of the DLS; ``max_speed``
+    m/s and ``max_accel`` m/s^2 of the ee point; ``max_angular_speed`` rad/s and
+    ``max_angular_accel`` rad/s^2 of the ee; ``joint_speed_fraction`` of each joint's limit.
+    """
+
+    gain: float = 4.0
+    damping: float = 0.05
+    max_speed: float = 0.25
+    max_accel: float = 1.0
+    max_angular_speed: float = MAX_ANGULAR_SPEED
+    max_angular_accel: float = MAX_ANGULAR_ACCEL
+    joint_speed_fraction: float = JOINT_SPEED_FRACTION
+
+    @staticmethod
+    def from_config(config: FollowConfig) -> ServoGains:
+        return ServoGains(
+            gain=config.gain,
+            damping=config.damping,
+            max_speed=config.max_speed,
+            max_accel=config.max_accel,
+        )
+
+
+@dataclass(frozen=True)
+class ServoStep:
+    """One servo cycle: the joint target ``q``, the joint velocity ``qdot`` that got there,
+    the commanded twist ``command`` (omega, p_dot) after the Cartesian limits and scaled down
+    with qdot when the joint speed limit bit (pass it as the next cycle's ``twist_prev``), the
+    twist ``achieved`` to first order (J qdot), and whether a limit bit (Cartesian speed or
+    acceleration; joint limit or speed)."""
+
+    q: Array
+    qdot: Array
+    command: Array
+    achieved: Array
+    cartesian_limited: bool
+    joint_limited: bool
+
+
+def servo_step(
+    q: ArrayLike,
+    T_base_des: ArrayLike,
+    twist_ff: ArrayLike,
+    twist_prev: ArrayLike,
+    dt: float,
+    gains: ServoGains,
+    model: ArmModel = VX300S,
+) -> ServoStep:
+    """One cycle of the Cartesian servo: from joints ``q`` toward ``T_base_des`` in ``dt`` s.
+
+    V = ``twist_ff`` + gain x (rotation vector of R_des R(q)^T, p_des - p(q)), limited in norm
+    and in change from ``twist_prev`` (the previous cycle's ``command``), then
+    :func:`damped_least_squares` on :func:`ee_point_jacobian` weighted by the joint velocity
+    limits, damping the directions with singular values under :data:`DAMPING_THRESHOLD`;
+    joints within :data:`JOINT_LIMIT_MARGIN_RAD` of a limit and moving out are locked; the
+    joint velocities are scaled down together to the joint speed limit; q + qdot dt.
+
+    The limits act on the command, not on J qdot: damping shrinks each cycle's J qdot by a
+    fraction of the command that depends on the pose, and limiting the change from that
+    (instead of from the previous command, which changes smoothly) would let the command
+    jump back up by that fraction every cycle, a sawtooth in the ee's velocity.
+    """
+    q = np.asarray(q, dtype=float)
+    T_des = np.asarray(T_base_des, dtype=float)
+    V_ff = np.asarray(twist_ff, dtype=float)
+    V_prev = np.asarray(twist_prev, dtype=float)
+    T = fk(q, model)
+    error = np.concatenate(
+        [
+            Rotation.from_matrix(T_des[:3, :3] @ T[:3, :3].T).as_rotvec(),
+            T_des[:3, 3] - T[:3, 3],
+        ]
+    )
+    V = V_ff + gains.gain * error
+    w, w_hit = limit_rate(V[:3], V_prev[:3], gains.max_angular_speed, gains.max_angular_accel * dt)
+    v, v_hit = limit_rate(V[3:], V_prev[3:], gains.max_speed, gains.max_accel * dt)
+    command = np.concatenate([w, v])
+
+    J = ee_point_jacobian(q, model)
+    weights = (model.velocity / np.max(model.velocity)) ** 2
+    qdot = damped_least_squares(J, command, gains.damping, weights, DAMPING_THRESHOLD)
+    joint_limited = False
+    low = (q <= model.lower + JOINT_LIMIT_MARGIN_RAD) & (qdot < 0.0)
+    high = (q >= model.upper - JOINT_LIMIT_MARGIN_RAD) & (qdot > 0.0)
+    if np.any(low | high):
+        joint_limited = True
+        locked = J * ~(low | high)
+        qdot = damped_least_squares(locked, command, gains.damping, weights, DAMPING_THRESHOLD)
+    ratio = float(np.max(np.abs(qdot) / (gains.joint_speed_fraction * model.velocity)))
+    if ratio > 1.0:
+        joint_limited = True
+        qdot = qdot / ratio
+        command = command / ratio  # what the arm will actually be asked to do
+    q_next = np.clip(q + qdot * dt, model.lower, model.upper)
+    qdot = (q_next - q) / dt
+    return ServoStep(q_next, qdot, command, J @ qdot, v_hit or w_hit, joint_limited)
+
+
+# --------------------------------------------------------------------------- the target
+
+
+class TargetEstimator:
+    """Position and velocity of a moving point from timestamped measurements (base frame).
+
+    A polynomial p(t) = a + b (t - t_n) + c (t - t_n)^2 fitted by least squares to the
+    measurements of the last ``window_s`` seconds (t_n the newest): the position at time t is
+    its value there and the velocity its slope, extrapolated at most ``max_extrapolation_s``
+    past t_n (then held, with zero velocity). The quadratic term is what keeps the velocity
+    of a target going round a curve current: a straight line's slope is the velocity at the
+    middle of the window, which on a circle points the wrong way by omega x window / 2 (14
+    degrees at 10 cm/s on a 6 cm radius with 0.3 s), a feed-forward error the loop's gain has
+    to make up. With fewer than :data:`ESTIMATOR_QUADRATIC` (count, span s) measurements the
+    fit is a line, with fewer than :data:`ESTIMATOR_LINEAR` the newest measurement with zero
+    velocity.
+    """
+
+    def __init__(
+        self, window_s: float = ESTIMATOR_WINDOW_S, max_extrapolation_s: float = MAX_EXTRAPOLATION_S
+    ) -> None:
+        self.window_s = float(window_s)
+        self.max_extrapolation_s = float(max_extrapolation_s)
+        self._samples: deque[tuple[float, Array]] = deque()
+        self.count = 0
+
+    @property
+    def last_time(self) -> float | None:
+        """Time of the newest measurement (None before the first)."""
+        return self._samples[-1][0] if self._samples else None
+
+    @property
+    def last_position(self) -> Array | None:
+        return self._samples[-1][1].copy() if self._samples else None
+
+    def update(self, t: float, p: ArrayLike) -> None:
+        """Add a measurement ``p`` (m) taken at ``t`` (s); older-than-newest ones are ignored."""
+        if self._samples and t <= self._samples[-1][0]:
+            return
+        self._samples.append((float(t), np.array(p, dtype=float)))
+        self.count += 1
+        while self._samples[0][0] < t - self.window_s:
+            self._samples.popleft()
+
+    def estimate(self, t: float) -> tuple[Array, Array] | None:
+        """(position, velocity) at time ``t``; None before the first measurement."""
+        if not self._samples:
+            return None
+        t_n, p_n = self._samples[-1]
+        n, span = len(self._samples), t_n - self._samples[0][0]
+        if n >= ESTIMATOR_QUADRATIC[0] and span >= ESTIMATOR_QUADRATIC[1]:
+            degree = 2
+        elif n >= ESTIMATOR_LINEAR[0] and span >= ESTIMATOR_LINEAR[1]:
+            degree = 1
+        else:
+            return p_n.copy(), np.zeros(3)
+        ts = np.array([s[0] - t_n for s in self._samples])
+        A = np.vander(ts, degree + 1, increasing=True)  # columns 1, t, t^2
+        coef, *_ = np.linalg.lstsq(A, np.array([s[1] for s in self._samples]), rcond=None)
+        ahead = min(max(t - t_n, 0.0), self.max_extrapolation_s)
+        powers = ahead ** np.arange(degree + 1)
+        p = powers @ coef
+        if t - t_n > self.max_extrapolation_s:
+            return p, np.zeros(3)
+        return p, (np.arange(1, degree + 1) * powers[:-1]) @ coef[1:]
+
+
+class _TagTarget:
+    """A tag other than the gripper's, from the tag stage's newest processed frame."""
+
+    def __init__(self, tag_id: int, T_base_cam: Array) -> None:
+        self.tag_id = tag_id
+        self.T_base_cam = T_base_cam
+        self.estimator = TargetEstimator()
+        self._frame_time: float | None = None
+
+    @property
+    def label(self) -> str:
+        return f"tag {self.tag_id}"
+
+    @property
+    def last_seen(self) -> float | None:
+        return self.estimator.last_time
+
+    def poll(self, state: SystemState) -> None:
+        t = state.tags_time
+        if t is None or (self._frame_time is not None and t <= self._frame_time):
+            return
+        self._frame_time = t
+        for tag in state.tags:
+            if tag.id == self.tag_id:
+                self.estimator.update(t, (self.T_base_cam @ tag.T_cam_tag)[:3, 3])
+                return
+
+    def estimate(self, t: float) -> tuple[Array, Array] | None:
+        return self.estimator.estimate(t)
+
+    def newest(self) -> Array | None:
+        return self.estimator.last_position
+
+    @property
+    def measurements(self) -> int:
+        return self.estimator.count
+
+
+class _TrackTarget:
+    """A bottle's confirmed track from the fusion loop (position and velocity already filtered).
+
+    Without ``track_id`` the first bottle seen (nearest the base) is taken and kept.
+    """
+
+    def __init__(self, track_id: int | None) -> None:
+        self.track_id = track_id
+        self.last_seen: float | None = None
+        self.measurements = 0
+        self._p: Array | None = None
+        self._v = np.zeros(3)
+        self._t = 0.0
+
+    @property
+    def label(self) -> str:
+        return "a bottle" if self.track_id is None else f"bottle track {self.track_id}"
+
+    def poll(self, state: SystemState) -> None:
+        if self.track_id is None:
+            bottles = state.bottles()
+            if not bottles:
+                return
+            self.track_id = bottles[0].id
+        track = state.track(self.track_id)
+        if track is None or (self.last_seen is not None and track.last_seen <= self.last_seen):
+            return
+        self.last_seen = float(track.last_seen)
+        self.measurements += 1
+        self._p = np.array(track.p_base, dtype=float)
+        self._v = np.array(track.v_base, dtype=float)
+        self._t = float(track.t)
+
+    def estimate(self, t: float) -> tuple[Array, Array] | None:
+        if self._p is None or self.last_seen is None:
+            return None
+        horizon = self.last_seen + MAX_EXTRAPOLATION_S
+        v = self._v if t <= horizon else np.zeros(3)
+        return self._p + self._v * (min(t, horizon) - self._t), v
+
+    def newest(self) -> Array | None:
+        return None if self._p is None else self._p + self._v * (self.last_seen - self._t)
+
+
+# --------------------------------------------------------------------------- the result
+
+
+@dataclass(frozen=True)
+class FollowResult:
+    """What a follow did. ``ok`` unless the target was lost.
+
+    ``mode`` servo or blocking; ``target`` what was followed ("tag 0", "bottle track 3");
+    ``stop_cause`` duration or lost (Stop raises TaskStopped instead); ``duration_s`` from
+    start to standstill; ``stopped_at`` the clock time the loop decided to stop and
+    ``last_seen`` the target's last sighting (clock seconds, None if never); ``cycles`` servo
+    cycles (or blocking moves) and ``rate_hz`` their rate over the loop's time; ``overruns``
+    cycles that started more than a period late; ``tracked_s`` the loop time during which the
+    target had been seen within :data:`MAX_EXTRAPOLATION_S`; ``measurements`` target
+    sightings; ``latency_ms_*`` how old the newest target measurement was when a command went
+    out (clock ms); ``compute_ms_*`` wall-clock time of a cycle's own work; ``limited_cycles``
+    cycles in which a Cartesian speed or acceleration limit bit; ``failed_moves`` blocking
+    moves the arm refused; ``error_mm_*`` the loop's own view of its tracking error: fk of the
+    (calibrated) encoders vs the desired position for the estimated target, every cycle.
+    """
+
+    ok: bool
+    reason: str
+    mode: Mode
+    target: str
+    stop_cause: StopCause
+    duration_s: float
+    stopped_at: float
+    last_seen: float | None
+    cycles: int
+    rate_hz: float
+    overruns: int
+    tracked_s: float
+    measurements: int
+    latency_ms_mean: float | None
+    latency_ms_max: float | None
+    compute_ms_mean: float | None
+    compute_ms_max: float | None
+    limited_cycles: int
+    failed_moves: int
+    error_mm_rms: float | None
+    error_mm_max: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        def r(x: float | None, n: int = 3) -> float | None:
+            return None if x is None else round(float(x), n)
+
+        return {
+            "ok": self.ok,
+            "reason": self.reason,
+            "mode": self.mode,
+            "target": self.target,
+            "stop_cause": self.stop_cause,
+            "duration_s": r(self.duration_s),
+            "stopped_at": r(self.stopped_at, 4),
+            "last_seen": r(self.last_seen, 4),
+            "cycles": self.cycles,
+            "rate_hz": r(self.rate_hz, 2),
+            "overruns": self.overruns,
+            "tracked_s": r(self.tracked_s),
+            "measurements": self.measurements,
+            "latency_ms_mean": r(self.latency_ms_mean, 2),
+            "latency_ms_max": r(self.latency_ms_max, 2),
+            "compute_ms_mean": r(self.compute_ms_mean, 3),
+            "compute_ms_max": r(self.compute_ms_max, 3),
+            "limited_cycles": self.limited_cycles,
+            "failed_moves": self.failed_moves,
+            "error_mm_rms": r(self.error_mm_rms, 2),
+            "error_mm_max": r(self.error_mm_max, 2),
+        }
+
+
+class _Stats:
+    """Counters a loop fills in, turned into a :class:`FollowResult` at the end."""
+
+    def __init__(self, start: float) -> None:
+        self.start = start
+        self.cycles = 0
+        self.overruns = 0
+        self.tracked_s = 0.0
+        self.latency: list[float] = []
+        self.compute: list[float] = []
+        self.errors: list[float] = []
+        self.limited = 0
+        self.failed_moves = 0
+
+    def result(
+        self,
+        mode: Mode,
+        target: Any,
+        cause: StopCause,
+        reason: str,
+        stopped_at: float,
+        end: float,
+    ) -> FollowResult:
+        def mean(x: list[float], scale: float = 1.0) -> float | None:
+            return scale * float(np.mean(x)) if x else None
+
+        def peak(x: list[float], scale: float = 1.0) -> float | None:
+            return scale * float(np.max(x)) if x else None
+
+        loop_time = stopped_at - self.start
+        errors = np.array(self.errors)
+        return FollowResult(
+            ok=cause == "duration",
+            reason=reason,
+            mode=mode,
+            target=target.label,
+            stop_cause=cause,
+            duration_s=end - self.start,
+            stopped_at=stopped_at,
+            last_seen=target.last_seen,
+            cycles=self.cycles,
+            rate_hz=self.cycles / loop_time if loop_time > 0 else 0.0,
+            overruns=self.overruns,
+            tracked_s=self.tracked_s,
+            measurements=target.measurements,
+            latency_ms_mean=mean(self.latency, 1e3),
+            latency_ms_max=peak(self.latency, 1e3),
+            compute_ms_mean=mean(self.compute, 1e3),
+            compute_ms_max=peak(self.compute, 1e3),
+            limited_cycles=self.limited,
+            failed_moves=self.failed_moves,
+            error_mm_rms=1e3 * math.sqrt(float(np.mean(errors**2))) if len(errors) else None,
+            error_mm_max=1e3 * float(np.max(errors)) if len(errors) else None,
+        )
+
+
+# --------------------------------------------------------------------------- the task
+
+
+def follow(
+    ctx: TaskContext,
+    target: TargetKind = "tag",
+    tag_id: int | None = None,
+    track_id: int | None = None,
+    duration_s: float | None = None,
+    mode: Mode = "servo",
+    moving_time: float | None = None,
+) -> FollowResult:
+    """Follow a tag (``tag_id``, default ``follow.tag_id``) or a bottle (``track_id``, default
+    the nearest) for ``duration_s`` (default ``follow.duration_s``); see the module docstring.
+
+    ``mode``: "servo" (the streaming loop at ``follow.rate_hz``) or "blocking" (the paper's
+    move-and-wait loop, each move taking ``moving_time`` s, default the arm's). Returns a
+    :class:`FollowResult`; raises TaskError for bad arguments or an arm that does not follow.
+    """
+    config = ctx.config.follow
+    if target not in ("tag", "bottle"):
+        raise TaskError(f"follow target must be 'tag' or 'bottle', not {target!r}")
+    if mode not in ("servo", "blocking"):
+        raise TaskError(f"follow mode must be 'servo' or 'blocking', not {mode!r}")
+    duration = config.duration_s if duration_s is None else float(duration_s)
+    if not (math.isfinite(duration) and duration > 0.0):
+        raise TaskError(f"follow duration must be a positive number of seconds, not {duration_s}")
+    if moving_time is not None and not (math.isfinite(moving_time) and moving_time > 0.0):
+        raise TaskError(f"moving_time must be a positive number of seconds, not {moving_time}")
+    source: _TagTarget | _TrackTarget
+    if target == "tag":
+        tag = config.tag_id if tag_id is None else int(tag_id)
+        if tag == ctx.config.tag.id:
+            raise TaskError(
+                f"tag {tag} is the gripper's own tag; follow another tag "
+                "(set follow.tag_id or pass tag_id)"
+            )
+        source = _TagTarget(tag, np.asarray(ctx.system.T_base_cam, dtype=float))
+    else:
+        source = _TrackTarget(track_id)
+    ctx.progress(0.0, f"following {source.label} for {duration:.1f} s ({mode})")
+    if mode == "servo":
+        return _servo(ctx, config, source, duration)
+    return _blocking(ctx, config, source, duration, moving_time)
+
+
+def _lost_reason(source: Any, now: float, start: float, timeout: float) -> str | None:
+    """Why the target counts as lost at ``now``, or None if it does not."""
+    seen = source.last_seen
+    if seen is None:
+        if now - start > timeout:
+            return (
+                f"target lost: {source.label} not seen in the first {timeout:.2f} s "
+                "(is it in view of the camera, and its detector on?)"
+            )
+        return None
+    if now - seen > timeout:
+        return f"target lost: {source.label} not seen for {now - seen:.2f} s"
+    return None
+
+
+def _encoder_error(ctx: TaskContext, model: ArmModel, p_des: Array) -> tuple[Array, float]:
+    """The calibrated encoder reading and its ee's distance from ``p_des`` (m)."""
+    q_meas = ctx.joint_positions()
+    return q_meas, float(np.linalg.norm(fk(q_meas, model)[:3, 3] - p_des))
+
+
+def _servo(ctx: TaskContext, config: FollowConfig, source: Any, duration: float) -> FollowResult:
+    arm = ctx.arm
+    model: ArmModel = getattr(arm, "model", VX300S)
+    gains = ServoGains.from_config(config)
+    period = 1.0 / config.rate_hz
+    start = ctx.now()
+    stats = _Stats(start)
+    q_cmd = ctx.joint_positions()
+    twist = np.zeros(6)
+    last_command: float | None = None
+    next_tick = start
+    next_progress = start + PROGRESS_EVERY_S
+    cause: StopCause = "duration"
+    reason = ""
+    while True:
+        now = ctx.now()
+        wall = time.perf_counter()
+        source.poll(ctx.state())
+        if now - start >= duration:
+            reason = f"followed {source.label} for {duration:.1f} s"
+            break
+        lost = _lost_reason(source, now, start, config.lost_timeout_s)
+        if lost is not None:
+            cause, reason = "lost", lost
+            break
+        estimate = source.estimate(now)
+        if estimate is not None:
+            dt = (
+                period
+                if last_command is None
+                else min(max(now - last_command, 1e-3), STREAM_MAX_STEP_S)
+            )
+            T_des, twist_ff = desired_pose_and_twist(
+                estimate[0], estimate[1], config.standoff, config.height_offset
+            )
+            step = servo_step(q_cmd, T_des, twist_ff, twist, dt, gains, model)
+            q_meas, error = _encoder_error(ctx, model, T_des[:3, 3])
+            _check_following(q_cmd, q_meas, model)
+            if not ctx.stream(step.q):
+                raise TaskError(
+                    f"the arm refused a servo target: {arm.last_error} (the follow stopped)"
+                )
+            q_cmd, twist, last_command = step.q, step.command, now
+            stats.cycles += 1
+            stats.limited += step.cartesian_limited
+            stats.errors.append(error)
+            stats.latency.append(now - source.last_seen)
+            if now - source.last_seen <= MAX_EXTRAPOLATION_S:
+                stats.tracked_s += dt
+            stats.compute.append(time.perf_counter() - wall)
+        if now >= next_progress:
+            ctx.progress((now - start) / duration, f"following {source.label}")
+            next_progress += PROGRESS_EVERY_S
+        next_tick += period
+        if next_tick < ctx.now() - period:  # more than a cycle behind: do not catch up
+            stats.overruns += 1
+            next_tick = ctx.now()
+        ctx.sleep(next_tick - ctx.now())
+    stopped_at = ctx.now()
+    _ramp_down(ctx, q_cmd, twist, last_command, period, gains, model)
+    return stats.result("servo", source, cause, reason, stopped_at, ctx.now())
+
+
+def _check_following(q_cmd: Array, q_meas: Array, model: ArmModel) -> None:
+    gap = np.abs(q_meas - q_cmd)
+    j = int(np.argmax(gap))
+    if gap[j] > DIVERGENCE_RAD:
+        raise TaskError(
+            f"the arm is not following the servo targets: {model.joint_names[j]} is "
+            f"{math.degrees(gap[j]):.0f} degrees from its command (blocked, or torque off?); "
+            "the follow stopped"
+        )
+
+
+def _ramp_down(
+    ctx: TaskContext,
+    q_cmd: Array,
+    twist: Array,
+    last_command: float | None,
+    period: float,
+    gains: ServoGains,
+    model: ArmModel,
+) -> None:
+    """Bring the commanded motion to rest at the acceleration limits, streaming as it goes."""
+    end = ctx.now() + RAMP_DOWN_MAX_S
+    while np.linalg.norm(twist[3:]) > 1e-4 or np.linalg.norm(twist[:3]) > 1e-3:
+        now = ctx.now()
+        if now >= end or last_command is None:
+            break
+        dt = min(max(now - last_command, 1e-3), STREAM_MAX_STEP_S)
+        # Aim where the command is: zero error and no feed-forward, so only the limiter acts.
+        step = servo_step(q_cmd, fk(q_cmd, model), np.zeros(6), twist, dt, gains, model)
+        if not ctx.stream(step.q):
+            break  # the arm holds its last accepted target
+        q_cmd, twist, last_command = step.q, step.command, now
+        ctx.sleep(period)
+
+
+def _blocking(
+    ctx: TaskContext,
+    config: FollowConfig,
+    source: Any,
+    duration: float,
+    moving_time: float | None,
+) -> FollowResult:
+    model: ArmModel = getattr(ctx.arm, "model", VX300S)
+    period = 1.0 / config.rate_hz
+    start = ctx.now()
+    stats = _Stats(start)
+    cause: StopCause = "duration"
+    reason = ""
+    while True:
+        now = ctx.now()
+        source.poll(ctx.state())
+        if now - start >= duration:
+            reason = f"followed {source.label} for {duration:.1f} s"
+            break
+        lost = _lost_reason(source, now, start, config.lost_timeout_s)
+        if lost is not None:
+            cause, reason = "lost", lost
+            break
+        p_target = source.newest()
+        if p_target is None:
+            ctx.sleep(period)
+            continue
+        wall = time.perf_counter()
+        fresh = now - source.last_seen <= MAX_EXTRAPOLATION_S
+        T_des = desired_ee_pose(p_target, config.standoff, config.height_offset)
+        _, error = _encoder_error(ctx, model, T_des[:3, 3])
+        stats.errors.append(error)
+        stats.latency.append(now - source.last_seen)
+        stats.compute.append(time.perf_counter() - wall)
+        stats.cycles += 1
+        ctx.progress((now - start) / duration, f"moving toward {source.label}")
+        if not ctx.move_pose(T_des, moving_time=moving_time, position_priority=True):
+            stats.failed_moves += 1
+            ctx.sleep(period)
+        if fresh:
+            stats.tracked_s += ctx.now() - now
+    stopped_at = ctx.now()
+    return stats.result("blocking", source, cause, reason, stopped_at, stopped_at)
