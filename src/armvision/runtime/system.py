@@ -183,7 +183,9 @@ class TaskContext:
         if seconds <= 0.0:
             return
         if self.system.lockstep:
-            self.system.pump(self.now() + seconds)
+            # At least one physics step, so a wait for "a moment" always moves the clock.
+            step = float(getattr(self.system.world, "timestep", 0.0))
+            self.system.pump(self.now() + max(seconds, step))
         else:
             self._stop.wait(seconds)
         self.check()

@@ -1,0 +1,120 @@
+"""The grab: its geometry by hand, its safety rules, and grasps judged by the simulator."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from armvision.config import Config, GrabConfig
+from armvision.fusion.tracker import TrackState
+from armvision.robot.kinematics import VX300S, fk, ik
+from armvision.runtime.build import sim_system
+from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.tasks.grab import GRASP_MARGIN_M, corridor_clear, grab, plan_grasp, safe_start_pose
+
+
+def _track(track_id: int, p, height: float = 0.2, radius: float = 0.03) -> TrackState:
+    z = np.zeros(3)
+    return TrackState(
+        track_id,
+        "bottle",
+        True,
+        0.0,
+        np.array(p, float),
+        z,
+        np.eye(6) * 1e-6,
+        5,
+        0.0,
+        (("bottle", 5.0),),
+        radius,
+        height,
+    )
+
+
+def test_plan_follows_the_papers_rule() -> None:
+    # A bottle 0.5 m out at 30 deg, centre 0.1 m up (height 0.2): waypoint 0.35 m out on the
+    # same bearing, grasp at 45 % of the height, both facing the bottle.
+    p = [0.5 * math.cos(math.radians(30)), 0.5 * math.sin(math.radians(30)), 0.1]
+    plan = plan_grasp(_track(1, p), GrabConfig())
+    assert plan.yaw == pytest.approx(math.radians(30))
+    assert plan.grasp_z == pytest.approx(0.09)
+    assert plan.waypoint[:3, 3] == pytest.approx(
+        [0.35 * math.cos(plan.yaw), 0.35 * math.sin(plan.yaw), 0.09]
+    )
+    assert plan.grasp[:3, 3] == pytest.approx([p[0], p[1], 0.09])
+    assert plan.grasp[:3, 0] == pytest.approx([math.cos(plan.yaw), math.sin(plan.yaw), 0.0])
+    # Nearer than the stand-off: the waypoint is the bottle's distance itself.
+    near = plan_grasp(_track(2, [0.1, 0.0, 0.1]), GrabConfig())
+    assert near.waypoint[:3, 3] == pytest.approx([0.1, 0.0, 0.09])
+
+
+def test_safe_start_pose_is_the_papers_when_reachable_else_the_nearest() -> None:
+    T = safe_start_pose((0.1, 0.0, 0.65))
+    assert T[:3, 3] == pytest.approx([0.1, 0.0, 0.65]) and T[:3, :3] == pytest.approx(np.eye(3))
+    far = safe_start_pose((0.1, 0.0, 0.95))  # above the arm's reach
+    _, ok = ik(far, np.zeros(6), VX300S)
+    assert ok and far[2, 3] < 0.95
+    assert fk(ik(far, np.zeros(6), VX300S)[0])[:3, 3] == pytest.approx(far[:3, 3], abs=1e-6)
+
+
+def test_corridor_sees_what_stands_in_the_way() -> None:
+    target = _track(1, [0.45, 0.0, 0.1])
+    assert not corridor_clear(target, [_track(2, [0.33, 0.02, 0.1])], 0.15)  # right in front
+    assert corridor_clear(target, [_track(3, [0.33, 0.15, 0.1])], 0.15)  # well to the side
+    assert corridor_clear(target, [_track(4, [0.1, 0.0, 0.1])], 0.15)  # behind the waypoint
+
+
+def _scene(*objects: ObjectSpec) -> SceneSpec:
+    return SceneSpec(random_camera_pose(Config().sim, None), objects)
+
+
+def _config(**grab) -> Config:
+    config = Config()
+    runtime = dataclasses.replace(config.runtime, tag_detection=False, liquid_detection=False)
+    return dataclasses.replace(
+        config, runtime=runtime, grab=dataclasses.replace(config.grab, **grab)
+    )
+
+
+BOTTLE = ObjectSpec("bottle", "bottle", 0.03, 0.21, 0.5, "juice", x=0.42, y=-0.1)
+BLOCKER = ObjectSpec("front", "bottle", 0.03, 0.18, 0.5, "cola", x=0.27, y=-0.064)
+
+
+def test_grab_takes_the_bottle_with_a_clear_way_and_lifts_it() -> None:
+    # "front" is the nearest bottle and nothing stands in its way, so it is the one taken;
+    # the simulator judges the lift.
+    with sim_system(_config(), seed=2, scene=_scene(BOTTLE, BLOCKER)) as system:
+        z0 = system.world.T_base_object("front")[2, 3]
+        status = system.run_task("grab", grab)
+        assert status.phase == "succeeded", status.error
+        system.pump(system.clock() + 2.0)
+        assert system.world.held_object() == "front"
+        assert system.world.T_base_object("front")[2, 3] - z0 == pytest.approx(0.10, abs=0.01)
+        assert status.result["finger"] > VX300S.finger_limits[0] + GRASP_MARGIN_M
+        assert status.result["stages"][-1] == "checked"
+        # The other bottle was not touched.
+        assert system.world.T_base_object("bottle")[:3, 3] == pytest.approx(
+            [0.42, -0.1, 0], abs=2e-3
+        )
+
+
+def test_grab_refuses_a_bottle_too_close_to_the_base() -> None:
+    # The rule is tested with the limit raised above the bottle's distance (a bottle within
+    # 5 cm of the base axis cannot stand there: the base is in the way).
+    with sim_system(_config(min_base_distance=0.5), seed=2, scene=_scene(BOTTLE)) as system:
+        status = system.run_task("grab", grab)
+        assert status.phase == "failed" and "not safe to grasp" in status.error
+        assert system.world.held_object() is None
+        assert status.result["stages"] == ["safe_start"]
+
+
+def test_grab_without_a_bottle_says_so() -> None:
+    cup = ObjectSpec(
+        "cup", "cup", 0.034, 0.1, 0.3, "water", x=0.4, y=0.0, colour=(0.8, 0.2, 0.2, 1.0)
+    )
+    with sim_system(_config(track_wait_s=2.0), seed=2, scene=_scene(cup)) as system:
+        status = system.run_task("grab", grab)
+    assert status.phase == "failed" and "no confirmed track of any bottle" in status.error
