@@ -218,3 +218,25 @@ def test_all_threads_in_realtime_for_30_s_with_tasks_and_stop() -> None:
     assert alive == []
     assert not any(h.alive for h in system.snapshot().health.values())
     assert math.isfinite(rate)
+
+
+def test_a_camera_that_knows_its_intrinsics_only_once_started() -> None:
+    """A RealSense has no intrinsics before start(); the system still builds (real_system)."""
+    from armvision.errors import HardwareError
+    from armvision.fusion.kalman import DEFAULT_FOCAL_PX
+    from armvision.robot.sim import SimArm
+    from armvision.runtime.build import sim_truth_calibration
+    from armvision.runtime.system import System
+    from armvision.sim.world import SimWorld
+
+    class Unstarted:
+        serial = "123"
+
+        @property
+        def intrinsics(self):
+            raise HardwareError("RealSenseCamera is not started")
+
+    world = SimWorld(Config(), seed=4, scene=_scene())
+    system = System(Config(), SimArm(world), Unstarted(), sim_truth_calibration(world.T_base_cam()))
+    assert system.fusion.focal_px == DEFAULT_FOCAL_PX
+    system.close()

@@ -47,6 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import Config
 from armvision.errors import ArmvisionError
+from armvision.fusion.kalman import DEFAULT_FOCAL_PX
 from armvision.fusion.loop import FusionLoop
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel, LiquidLevelMeter
 from armvision.perception.objects import GeometricDetector
@@ -329,13 +330,17 @@ class System:
         self.object_detector = object_detector or GeometricDetector(self.T_base_cam)
         self.liquid_meter = liquid_meter or LiquidLevelMeter()
         self.encoders = _CorrectedEncoders(arm, calibration.joint_offsets_rad)
+        try:
+            focal_px = float(camera.intrinsics.fx)
+        except ArmvisionError:  # a RealSense knows its intrinsics only once started
+            focal_px = DEFAULT_FOCAL_PX
         self.fusion = FusionLoop(
             config,
             self.encoders,
             self.T_base_cam,
             self.T_ee_tag,
             clock=clock,
-            focal_px=float(camera.intrinsics.fx),
+            focal_px=focal_px,
         )
         self.store = StateStore()
         self.enabled = {
