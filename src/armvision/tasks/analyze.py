@@ -82,6 +82,7 @@ from armvision.tasks.grab import (
     grab,
     safe_start_pose,
 )
+from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time, unflipped_ik
 
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
@@ -99,7 +100,7 @@ MIN_WINDOW_S = 3.0
 STALE_S = 0.5
 #: A lost track is taken up again by the bottle track nearest where it was, within this, m.
 REACQUIRE_M = 0.08
-#: A wait with less than this left has ended, seconds (see :func:`_wait`).
+#: A deadline with less than this left has passed, seconds.
 MIN_WAIT_S = 1e-3
 #: Releasing, the gripper backs off until its fingertips are this far from the bottle, m.
 BACKOFF_MARGIN_M = 0.02
@@ -111,16 +112,10 @@ RELEASE_HEIGHT_M = 0.004
 CARRY_SPEED_M_S = 0.15
 #: Straight moves are split into segments at most this long, m.
 SEGMENT_M = 0.06
-#: Shortest time for one segment, seconds.
-SEGMENT_TIME_S = 0.6
-#: No joint moves faster than this share of its velocity limit.
-SPEED_FRACTION = 0.5
 #: With the gripper empty, a point the arm cannot reach level is reached pitched down up to
 #: this (near the base a level gripper cannot reach low points), degrees. A held bottle is
 #: always carried level, so it stays upright.
 EMPTY_MAX_PITCH_DEG = 90
-#: Consecutive points of a straight move may differ by at most this in any joint, rad.
-MAX_JOINT_STEP_RAD = 1.2
 #: The presentation spot keeps this free gap to every other object (room for a finger), m.
 SPOT_CLEARANCE_M = 0.06
 #: Nothing may stand within this of the line of sight from the camera to the spot, m.
@@ -297,19 +292,11 @@ class Spot:
     box: Box
 
 
-def _unflipped_ik(T: Array, seed: Array, model: ArmModel) -> Array | None:
-    """Joint angles for ``T`` near ``seed`` with the wrist unflipped, or None."""
-    q, ok = ik(T, seed, model)
-    if ok and abs(q[3]) < math.pi / 2 and abs(q[5]) < math.pi / 2:
-        return q
-    return None
-
-
 def _reachable(p: ArrayLike, yaw: float, max_pitch_deg: int, model: ArmModel) -> bool:
     """Whether the gripper reaches ``p`` facing ``yaw``, pitched down at most
     ``max_pitch_deg`` (5 degree steps), with the wrist unflipped."""
     return any(
-        _unflipped_ik(make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p), model.home, model)
+        unflipped_ik(make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p), model.home, model)
         is not None
         for pitch in range(0, max_pitch_deg + 1, 5)
     )
@@ -433,23 +420,6 @@ def measure_window(cfg: AnalyzeConfig, object_hz: float) -> float:
 # --------------------------------------------------------------------------- the task
 
 
-def _wait(ctx: TaskContext, condition: Callable[[], bool], timeout_s: float) -> bool:
-    """``ctx.wait_until`` with less than :data:`MIN_WAIT_S` left counting as none left.
-
-    In lockstep, ``ctx.wait_until`` sleeps for whatever remains, and a floating-point residue
-    of a few nanoseconds is less than a physics step: the clock does not move and the wait
-    never ends. Polls every 50 ms (the object stage's newest output is what is waited for).
-    """
-    end = ctx.now() + timeout_s
-    while True:
-        if condition():
-            return True
-        remaining = end - ctx.now()
-        if remaining < MIN_WAIT_S:
-            return False
-        ctx.sleep(min(0.05, remaining))
-
-
 class _Abort(Exception):  # noqa: N818 - control flow inside this module
     """Ends the analysis with a reason (becomes AnalyzeResult.ok = False)."""
 
@@ -529,7 +499,7 @@ class _Analyze:
         return self.deadline - self.ctx.now()
 
     def timed_out(self) -> bool:
-        """Past the deadline (to within :data:`MIN_WAIT_S`, as :func:`_wait` ends)."""
+        """Past the deadline (to within :data:`MIN_WAIT_S`)."""
         return self.remaining() < MIN_WAIT_S
 
     # ------------------------------------------------------------ finding and measuring
@@ -544,7 +514,7 @@ class _Analyze:
             return bottles[0] if bottles else None
 
         wait = min(self.grab_cfg.track_wait_s, max(self.remaining(), 0.0))
-        if not _wait(self.ctx, lambda: read() is not None, wait):
+        if not self.ctx.wait_until(lambda: read() is not None, wait):
             which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
             raise _Abort(
                 f"no confirmed track of {which} within {wait:.0f} s: is a bottle in the "
@@ -570,7 +540,7 @@ class _Analyze:
             return frame
 
         while len(samples.levels) < self.cfg.frames:
-            if not _wait(ctx, lambda: new_frame() is not None, end - ctx.now()):
+            if not ctx.wait_until(lambda: new_frame() is not None, end - ctx.now()):
                 break
             state = ctx.state()
             frame = state.detections_frame
@@ -662,13 +632,9 @@ class _Analyze:
         near the last commanded pose (wrist unflipped), else pitched down in 5 degree steps up
         to ``max_pitch_deg``; _Abort if neither."""
         arm = self.ctx.arm
-        q_now = np.asarray(arm.get_joint_positions(), dtype=float)
-        seed = q_now if self.last_T is None else ik(self.last_T, q_now, arm.model)[0]
-        for pitch in range(0, max_pitch_deg + 1, 5):
-            T = make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p)
-            q = _unflipped_ik(T, seed, arm.model)
-            if q is not None and np.max(np.abs(q - seed)) < MAX_JOINT_STEP_RAD:
-                return T, q
+        found = level_pose(p, yaw, motion_seed(arm, self.last_T), arm.model, max_pitch_deg)
+        if found is not None:
+            return found
         raise _Abort(
             f"the gripper cannot reach ({', '.join(f'{v:.3f}' for v in p)}) m facing "
             f"{math.degrees(yaw):.0f} degrees"
@@ -678,9 +644,7 @@ class _Analyze:
         """One checked move taking at least ``duration`` (longer if a joint would exceed
         :data:`SPEED_FRACTION` of its velocity limit); _Abort with the arm's reason."""
         arm = self.ctx.arm
-        q_now = np.asarray(arm.get_joint_positions(), dtype=float)
-        slowest = float(np.max(np.abs(q - q_now) / (SPEED_FRACTION * arm.model.velocity)))
-        duration = max(duration, slowest + arm.accel_time)
+        duration = paced_time(arm, q, duration)
         if not self.ctx.move_pose(T, moving_time=duration, custom_guess=q):
             raise _Abort(f"{what}: {arm.last_error or 'the arm refused the move'}")
         self.last_T = T

@@ -36,10 +36,11 @@ import numpy as np
 
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
-from armvision.geometry import make_T, rot_z, rpy_to_R
+from armvision.geometry import make_T, rot_z
 from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
 from armvision.runtime.state import SystemState
 from armvision.runtime.system import TaskContext, TaskError
+from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
 GRASP_MARGIN_M = 0.004
@@ -50,12 +51,6 @@ MOVED_M = 0.02
 GRIPPER_HALF_WIDTH_M = 0.06
 #: Above the waypoint, the gripper comes down from this far above the bottle's top, metres.
 HOVER_CLEARANCE_M = 0.08
-#: Shortest time for one segment of a straight-line move, seconds.
-SEGMENT_TIME_S = 0.6
-#: Consecutive points of a straight move may differ by at most this in any joint, rad.
-MAX_JOINT_STEP_RAD = 1.2
-#: Near objects, no joint moves faster than this share of its velocity limit.
-SPEED_FRACTION = 0.5
 #: How far the corridor extends behind the waypoint toward the base, metres.
 CORRIDOR_BACK_M = 0.05
 
@@ -227,11 +222,9 @@ class _Grab:
         """
         arm = self.ctx.arm
         duration = moving_time or self.cfg.moving_time
-        q_now = arm.get_joint_positions()
-        q, ok = ik(T, q_now, arm.model)
+        q, ok = ik(T, arm.get_joint_positions(), arm.model)
         if ok:
-            slowest = float(np.max(np.abs(q - q_now) / (SPEED_FRACTION * arm.model.velocity)))
-            duration = max(duration, slowest + arm.accel_time)
+            duration = paced_time(arm, q, duration)
         for attempt in range(self.cfg.retries + 1):
             self.check_time()
             if self.ctx.move_pose(
@@ -294,22 +287,10 @@ class _Grab:
         """
         assert self.plan is not None
         arm = self.ctx.arm
-        seed = (
-            arm.get_joint_positions()
-            if self.last_target is None
-            else ik(self.last_target, arm.get_joint_positions(), arm.model)[0]
-        )
-        for pitch_deg in range(0, 91, 5):
-            T = make_T(rpy_to_R(0.0, math.radians(pitch_deg), self.plan.yaw), p)
-            q, ok = ik(T, seed, arm.model)
-            if (
-                ok
-                and abs(q[3]) < math.pi / 2
-                and abs(q[5]) < math.pi / 2
-                and np.max(np.abs(q - seed)) < MAX_JOINT_STEP_RAD
-            ):
-                return T
-        return make_T(rot_z(self.plan.yaw), p)  # unreachable: the move will say so
+        found = level_pose(p, self.plan.yaw, motion_seed(arm, self.last_target), arm.model)
+        if found is None:
+            return make_T(rot_z(self.plan.yaw), p)  # unreachable: the move will say so
+        return found[0]
 
     def finger(self) -> float:
         return float(self.ctx.arm.gripper.get_finger_position())
