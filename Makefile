@@ -2,8 +2,9 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-# Debian packages: libusb for pyrealsense2, EGL/GL and Mesa's software renderer for offscreen MuJoCo.
-APT_PACKAGES := libusb-1.0-0 libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri
+# Debian packages: libusb for pyrealsense2, EGL/GL and Mesa's software renderer for offscreen
+# MuJoCo, and chromium (with a font) for the UI's end-to-end tests, headless under Playwright.
+APT_PACKAGES := libusb-1.0-0 libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri chromium fonts-dejavu-core
 STAMP  := $(VENV)/.armvision-installed
 
 export MUJOCO_GL ?= egl

@@ -137,6 +137,42 @@ def cmd_follow(args: argparse.Namespace, config: Config) -> int:
     )
 
 
+# --------------------------------------------------------------------------- armvision ui
+
+
+def cmd_ui(args: argparse.Namespace, config: Config) -> int:
+    import dataclasses
+
+    from armvision.cli import _sim_calibration_path
+    from armvision.ui.server import OperatorUI, Server, listen, resolve_token
+
+    host = args.host or config.ui.host
+    port = config.ui.port if args.port is None else args.port
+    token = resolve_token(host, config.ui.token)
+    sock = listen(host, port)  # a busy port fails before the system is built
+    if args.real:
+        saved_to = args.calibration or config.calibration.file
+    else:
+        saved_to = str(_sim_calibration_path(config.calibration.file))
+        # A tag on the table for Follow tag (loose tags get ids 0, 1, ...: follow.tag_id 0).
+        config = dataclasses.replace(
+            config, sim=dataclasses.replace(config.sim, loose_tags=max(config.sim.loose_tags, 1))
+        )
+        args.realtime = True
+    try:
+        system = _system(args, config)
+    except BaseException:
+        sock.close()
+        raise
+    with system:
+        ui = OperatorUI(system, config, "real" if args.real else "sim", token, saved_to)
+        server = Server(ui, sock)
+        _say(f"operator UI at {server.url()}  (Ctrl-C quits; the arm halts where it is)")
+        server.run()
+    _say("UI closed")
+    return 0
+
+
 # --------------------------------------------------------------------------- evals
 
 
@@ -224,6 +260,25 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     follow.add_argument("--duration", type=float, help="seconds (default follow.duration_s)")
     follow.add_argument("--mode", choices=("servo", "blocking"), default="servo")
     follow.set_defaults(func=cmd_follow)
+
+    ui = sub.add_parser("ui", help="the operator web UI: live video, state, every task")
+    where = ui.add_mutually_exclusive_group()
+    where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
+    where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
+    ui.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    ui.add_argument(
+        "--calibration",
+        metavar="PATH",
+        help="calibration file (real default: calibration.file; Calibrate saves there); in "
+        "simulation the default is to calibrate at start, and 'truth' uses the simulator's pose",
+    )
+    ui.add_argument(
+        "--host",
+        help="address to listen on (default ui.host, 127.0.0.1); any other needs the token "
+        "that is printed (or ui.token / $ARMVISION_UI_TOKEN)",
+    )
+    ui.add_argument("--port", type=int, help="port (default ui.port, 8000)")
+    ui.set_defaults(func=cmd_ui)
 
     grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")
     grab_eval.add_argument("--trials", type=int, default=50, help="scenes (default 50)")

@@ -341,6 +341,29 @@ class AnalyzeConfig:
 
 
 @dataclass(config=_STRICT)
+class UIConfig:
+    """The operator web UI (``armvision ui``, armvision.ui).
+
+    It listens on ``host``:``port``; on any address but the loopback every request and socket
+    must carry ``token`` (empty: a random one is made and printed at start; the environment
+    variable ``ARMVISION_UI_TOKEN`` overrides this key, which keeps it out of files). The
+    state is pushed ``state_hz`` times a second, video at most ``video_fps`` frames a second as
+    JPEG of ``jpeg_quality``; the depth view maps ``depth_min_m``..``depth_max_m`` onto its
+    colours. ``follow_duration_s`` is the follow buttons' default length.
+    """
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 8000
+    token: str = ""
+    state_hz: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
+    video_fps: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
+    jpeg_quality: Annotated[int, Field(ge=10, le=100)] = 80
+    depth_min_m: Annotated[float, Field(ge=0.0)] = 0.2
+    depth_max_m: PositiveFloat = 2.0
+    follow_duration_s: PositiveFloat = 60.0
+
+
+@dataclass(config=_STRICT)
 class Config:
     """The whole tree; every section has the paper's defaults."""
 
@@ -354,6 +377,7 @@ class Config:
     grab: GrabConfig = dataclasses.field(default_factory=GrabConfig)
     follow: FollowConfig = dataclasses.field(default_factory=FollowConfig)
     analyze: AnalyzeConfig = dataclasses.field(default_factory=AnalyzeConfig)
+    ui: UIConfig = dataclasses.field(default_factory=UIConfig)
 
 
 _ADAPTER = TypeAdapter(Config)

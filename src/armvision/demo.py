@@ -162,8 +162,8 @@ def run_demo(
     say: Callable[[str], None] = lambda message: None,
 ) -> DemoReport:
     """Run the demo (see the module docstring); the report says what passed."""
-    from armvision.perception.annotate import annotate
     from armvision.runtime.build import load_calibration, sim_system
+    from armvision.runtime.view import annotated
     from armvision.sim.snapshot import _write_png
     from armvision.tasks.analyze import analyze
     from armvision.tasks.grab import grab
@@ -206,7 +206,7 @@ def run_demo(
             )
 
         frame_state = system.snapshot()
-        image = _annotated(frame_state, annotate, config)
+        image = annotated(frame_state, config.tag.size, newest=False)
 
         say("grabbing a bottle")
         start_z = {n: float(o.T_base_obj[2, 3]) for n, o in truth.items()}
@@ -290,40 +290,3 @@ def _report_detection(report: DemoReport, state, truth: dict) -> dict[str, int]:
     if extra:
         report.add("detect", "false tracks", str(extra), "0", "-", False)
     return result
-
-
-def _annotated(state, annotate, config: Config):
-    """The newest detection frame with tags, boxes, fills and track ids drawn."""
-    import cv2
-
-    frame = state.detections_frame or state.frame
-    if frame is None:
-        return None
-    levels = []
-    for det in state.detections:
-        level = None
-        if det.label == "bottle":
-            p = state.calibration.T_base_cam[:3, :3] @ det.center_cam
-            p = p + state.calibration.T_base_cam[:3, 3]
-            near = [t for t in state.tracks if np.linalg.norm(t.p_base - p) < 0.05]
-            if near and near[0].id in state.liquid:
-                level = state.liquid[near[0].id].latest
-        levels.append(level)
-    image = annotate(
-        frame.color, frame.intrinsics, state.tags, state.detections, levels, config.tag.size
-    )
-    for t in state.tracks:
-        if t.box is None:
-            continue
-        x0, y1 = round(t.box[0]), round(t.box[3])
-        cv2.putText(
-            image,
-            f"#{t.id} +-{t.sigma_mm:.0f}mm",
-            (x0, min(y1 + 14, image.shape[0] - 2)),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.45,
-            (255, 255, 0),
-            1,
-            cv2.LINE_AA,
-        )
-    return image

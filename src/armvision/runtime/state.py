@@ -31,6 +31,8 @@ TaskPhase = Literal["idle", "queued", "running", "succeeded", "failed", "stopped
 
 #: Rates are counted over this many seconds of history.
 RATE_WINDOW_S = 2.0
+#: A detection belongs to the nearest track of its label within this distance, metres.
+ASSOCIATION_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -280,6 +282,18 @@ class SystemState:
 
     def track(self, track_id: int) -> TrackState | None:
         return next((t for t in self.fusion.tracks if t.id == track_id), None)
+
+    def track_of(self, detection: Detection, within: float = ASSOCIATION_M) -> TrackState | None:
+        """The confirmed track of the detection's label nearest to it (in the base frame, by
+        the running calibration), if within ``within`` metres."""
+        T = self.calibration.T_base_cam
+        p = T[:3, :3] @ np.asarray(detection.center_cam, dtype=float) + T[:3, 3]
+        same = [t for t in self.fusion.tracks if t.label == detection.label]
+        if not same:
+            return None
+        dist = [float(np.linalg.norm(t.p_base - p)) for t in same]
+        k = int(np.argmin(dist))
+        return same[k] if dist[k] <= within else None
 
     def bottles(self) -> list[TrackState]:
         """Confirmed bottle tracks, nearest the base first."""

@@ -73,8 +73,6 @@ GRIPPER_TIME_S = 1.0
 POLL_S = 0.01
 #: The fusion thread makes up for at most this much lost time by running cycles back to back.
 FUSION_CATCH_UP_S = 0.1
-#: A bottle detection belongs to the nearest bottle track within this distance, metres.
-LIQUID_ASSOCIATION_M = 0.05
 
 
 class TaskStopped(ArmvisionError):  # noqa: N818 - control flow, like StopIteration
@@ -330,18 +328,7 @@ class System:
         self.object_detector = object_detector or GeometricDetector(self.T_base_cam)
         self.liquid_meter = liquid_meter or LiquidLevelMeter()
         self.encoders = _CorrectedEncoders(arm, calibration.joint_offsets_rad)
-        try:
-            focal_px = float(camera.intrinsics.fx)
-        except ArmvisionError:  # a RealSense knows its intrinsics only once started
-            focal_px = DEFAULT_FOCAL_PX
-        self.fusion = FusionLoop(
-            config,
-            self.encoders,
-            self.T_base_cam,
-            self.T_ee_tag,
-            clock=clock,
-            focal_px=focal_px,
-        )
+        self.fusion = self._fusion_loop()
         self.store = StateStore()
         self.enabled = {
             "tags": rt.tag_detection,
@@ -459,6 +446,43 @@ class System:
             self.clock(), self.fusion.snapshot(), health, self.enabled, self.calibration
         )
 
+    def _fusion_loop(self) -> FusionLoop:
+        try:
+            focal_px = float(self.camera.intrinsics.fx)
+        except ArmvisionError:  # a RealSense knows its intrinsics only once started
+            focal_px = DEFAULT_FOCAL_PX
+        return FusionLoop(
+            self.config,
+            self.encoders,
+            self.T_base_cam,
+            self.T_ee_tag,
+            clock=self.clock,
+            focal_px=focal_px,
+        )
+
+    def set_calibration(self, calibration: CalibrationStatus) -> None:
+        """Run with a new calibration from now on (a recalibration while running).
+
+        The fusion loop starts afresh with the new camera pose (tracks measured with the old
+        one would sit where the old pose put them; they are found again within a few frames),
+        the geometric detector's table model and the encoder offsets follow.
+        """
+        T_base_cam = np.asarray(calibration.T_base_cam, dtype=float)
+        if T_base_cam.shape != (4, 4) or not np.all(np.isfinite(T_base_cam)):
+            raise ArmvisionError("a calibration needs a finite 4x4 T_base_cam")
+        self.calibration = calibration
+        self.T_base_cam = T_base_cam
+        self.encoders.offsets = (
+            None
+            if calibration.joint_offsets_rad is None
+            else np.asarray(calibration.joint_offsets_rad, dtype=float)
+        )
+        if isinstance(self.object_detector, GeometricDetector):
+            self.object_detector.T_base_cam = T_base_cam
+        self.fusion = self._fusion_loop()  # the fusion stage picks it up at its next cycle
+        self._levels.clear()
+        self.store.keep_liquid(set())
+
     def set_detector(self, name: str, enabled: bool) -> None:
         """Switch the tag, object or liquid stage on or off."""
         if name not in DETECTORS:
@@ -502,16 +526,12 @@ class System:
             return False
         measured = False
         for det in state.detections:
-            if det.label != "bottle":
-                continue
-            p = self.T_base_cam[:3, :3] @ det.center_cam + self.T_base_cam[:3, 3]
-            dist = [float(np.linalg.norm(t.p_base - p)) for t in bottles]
-            k = int(np.argmin(dist))
-            if dist[k] > LIQUID_ASSOCIATION_M:
+            track = state.track_of(det) if det.label == "bottle" else None
+            if track is None:
                 continue
             geometry = ContainerGeometry(tuple(det.center_cam), det.radius, det.height)
             level = self.liquid_meter.measure(frame, det.box, geometry)
-            track_id = bottles[k].id
+            track_id = track.id
             history = self._levels.setdefault(
                 track_id, deque(maxlen=self.config.runtime.liquid_window)
             )

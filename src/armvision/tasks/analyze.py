@@ -4,7 +4,7 @@
    ``grab.track_wait_s`` (the same wait as the grasp's).
 2. **In place.** Every new frame the object stage processes (never one frame twice, none older
    than this step) gives one measurement, when the frame has a bottle detection within
-   :data:`~armvision.runtime.system.LIQUID_ASSOCIATION_M` of where the track last saw the
+   :data:`~armvision.runtime.state.ASSOCIATION_M` of where the track last saw the
    bottle (a stale or lost track is replaced by the nearest fresh bottle track:
    ``_Analyze.follow``): the system's
    :class:`~armvision.perception.liquid.LiquidLevelMeter` on that detection's box with its
@@ -72,8 +72,8 @@ from armvision.geometry import inv_T, make_T, rpy_to_R
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel
 from armvision.perception.objects import BOTTLE_BODY_FRACTION, Detection
 from armvision.robot.kinematics import ArmModel, ik
-from armvision.runtime.state import LiquidEstimate, SystemState, average_levels
-from armvision.runtime.system import LIQUID_ASSOCIATION_M, TaskContext
+from armvision.runtime.state import ASSOCIATION_M, LiquidEstimate, SystemState, average_levels
+from armvision.runtime.system import TaskContext
 from armvision.tasks.grab import (
     GRASP_MARGIN_M,
     GRIPPER_HALF_WIDTH_M,
@@ -563,7 +563,7 @@ class _Analyze:
     def _detection_near(self, state: SystemState, p_base: Array) -> Detection | None:
         """The bottle detection of ``state`` nearest ``p_base``, within the association gate."""
         T = self.ctx.system.T_base_cam
-        best, best_d = None, LIQUID_ASSOCIATION_M
+        best, best_d = None, ASSOCIATION_M
         for det in state.detections:
             if det.label != "bottle":
                 continue
@@ -716,7 +716,7 @@ class _Analyze:
                 float(t.p_base[2] + 0.5 * (t.height if t.height is not None else 0.25)),
             )
             for t in state.tracks
-            if np.linalg.norm(t.p_base - track.p_base) > LIQUID_ASSOCIATION_M
+            if np.linalg.norm(t.p_base - track.p_base) > ASSOCIATION_M
         ]
         ctx.progress(0.2, f"view poor ({poor}): picking the bottle to present it")
         grabbed: GrabResult = grab(ctx, track_id=track.id)
