@@ -686,10 +686,15 @@ def _servo(ctx: TaskContext, config: FollowConfig, source: Any, duration: float)
             break
         estimate = source.estimate(now)
         if estimate is not None:
+            # The arm checks each target's step against the time since its previous one; its
+            # clock moves on while we compute (a realtime simulation or a busy machine), so
+            # time the step from just after the previous target went to just before this one
+            # goes: never longer than the arm's interval.
+            now_cmd = ctx.now()
             dt = (
                 period
                 if last_command is None
-                else min(max(now - last_command, 1e-3), STREAM_MAX_STEP_S)
+                else min(max(now_cmd - last_command, 1e-3), STREAM_MAX_STEP_S)
             )
             T_des, twist_ff = desired_pose_and_twist(
                 estimate[0], estimate[1], config.standoff, config.height_offset
@@ -701,7 +706,7 @@ def _servo(ctx: TaskContext, config: FollowConfig, source: Any, duration: float)
                 raise TaskError(
                     f"the arm refused a servo target: {arm.last_error} (the follow stopped)"
                 )
-            q_cmd, twist, last_command = step.q, step.command, now
+            q_cmd, twist, last_command = step.q, step.command, ctx.now()
             stats.cycles += 1
             stats.limited += step.cartesian_limited
             stats.errors.append(error)

@@ -1,0 +1,92 @@
+"""A realtime simulated system with the operator UI served by uvicorn in a thread."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import httpx
+
+from armvision.config import Config
+from armvision.runtime.build import sim_system
+from armvision.runtime.system import System
+from armvision.sim.world import LooseTag, ObjectSpec, SceneSpec, random_camera_pose
+from armvision.ui.server import OperatorUI, Server, listen
+
+BOTTLE = ObjectSpec(
+    "bottle", "bottle", radius=0.032, height=0.2, fill=0.6, liquid="juice", x=0.40, y=0.10
+)
+CUP = ObjectSpec(
+    "cup",
+    "cup",
+    radius=0.034,
+    height=0.1,
+    fill=0.3,
+    liquid="water",
+    x=0.33,
+    y=-0.17,
+    colour=(0.8, 0.2, 0.2, 1.0),
+)
+
+
+def ui_scene(config: Config) -> SceneSpec:
+    """A bottle and a cup in reach, and tag 0 (follow.tag_id) on the table between them."""
+    tag = LooseTag(config.follow.tag_id, 0.45, -0.03, 0.3, config.tag.size)
+    return SceneSpec(random_camera_pose(config.sim, None), (BOTTLE, CUP), (tag,))
+
+
+@dataclass
+class RunningUI:
+    system: System
+    server: Server
+    url: str  # http://127.0.0.1:PORT (no trailing slash)
+
+    def state(self, client: httpx.Client) -> dict:
+        r = client.get(f"{self.url}/api/state")
+        r.raise_for_status()
+        return r.json()
+
+    def wait_state(
+        self, client: httpx.Client, condition: Callable[[dict], bool], timeout_s: float
+    ) -> dict:
+        """Poll /api/state until ``condition`` holds; the last state (AssertionError if never)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            state = self.state(client)
+            if condition(state):
+                return state
+            assert time.monotonic() < deadline, f"timed out; task: {state['task']}"
+            time.sleep(0.1)
+
+
+@contextmanager
+def serve(
+    system: System, config: Config, host: str = "127.0.0.1", token: str | None = None
+) -> Iterator[Server]:
+    server = Server(OperatorUI(system, config, "sim", token), listen(host, 0)).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@contextmanager
+def running_ui(seed: int = 3) -> Iterator[RunningUI]:
+    """The system (simulator truth as calibration) and its UI on 127.0.0.1, any free port."""
+    config = Config()
+    system = sim_system(config, seed, mode="realtime", scene=ui_scene(config))
+    system.start()
+    try:
+        with serve(system, config) as server:
+            ui = RunningUI(system, server, f"http://127.0.0.1:{server.port}")
+            with httpx.Client(timeout=10.0) as client:  # tracks confirmed, tags seen
+                ui.wait_state(
+                    client,
+                    lambda s: any(t["label"] == "bottle" for t in s["tracks"]) and s["tags"],
+                    timeout_s=30.0,
+                )
+            yield ui
+    finally:
+        system.close()
