@@ -491,9 +491,9 @@ class OperatorUI:
                     await ws.send_text(ui.payload())
                     next_time = max(next_time + period, loop.time())
                     await asyncio.sleep(next_time - loop.time())
+                await ws.close(1001)  # going away: the server shuts down
             except (WebSocketDisconnect, RuntimeError):
                 return  # the page went away
-            await ws.close(1001)
 
         def _view(view: str) -> str:
             if view not in ("color", "depth"):

@@ -1,0 +1,194 @@
+"""The operator page end to end: headless Chromium (Debian's, installed by `make setup`)
+driven by Playwright, against the real server on a realtime simulation.
+
+Each step is checked on the page and against the simulator's truth. Screenshots go to the
+test's temporary folder, or to ``$ARMVISION_UI_SCREENSHOTS`` when set (the README's picture
+is made that way).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from playwright.sync_api import Browser, Page, expect, sync_playwright
+
+from .conftest import RunningUI, running_ui
+
+CHROMIUM_ENV = "ARMVISION_CHROMIUM"
+# As the machine's notes prescribe for a closed network: no first-run, sync or background
+# traffic; --no-sandbox because CI runs as root.
+CHROMIUM_ARGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+# The colour image's pixels as one checksum (the <img> drawn on a canvas).
+FRAME_CHECKSUM_JS = """() => {
+  const img = document.getElementById('video');
+  if (!img.complete || img.naturalWidth === 0) return null;
+  const c = document.createElement('canvas');
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext('2d');
+  g.drawImage(img, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let s = 0;
+  for (let i = 0; i < d.length; i += 1) s = (s * 31 + d[i]) % 2147483647;
+  return s;
+}"""
+
+
+def chromium_path() -> str:
+    candidates = [os.environ.get(CHROMIUM_ENV), "/usr/bin/chromium", "/usr/bin/chromium-browser"]
+    candidates += [shutil.which("chromium"), shutil.which("chromium-browser")]
+    for path in candidates:
+        if path and Path(path).exists():
+            return path
+    pytest.fail(
+        "Chromium not found: `make setup` installs Debian's chromium package; elsewhere set "
+        f"{CHROMIUM_ENV} to a Chromium or Chrome executable"
+    )
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    where = os.environ.get("ARMVISION_UI_SCREENSHOTS")
+    path = Path(where) if where else tmp_path_factory.mktemp("screenshots")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@pytest.fixture(scope="module")
+def ui() -> Iterator[RunningUI]:
+    with running_ui() as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_ARGS)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser: Browser, ui: RunningUI) -> Iterator[Page]:
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.js_errors = []  # type: ignore[attr-defined]
+    page.on("pageerror", lambda exc: page.js_errors.append(str(exc)))  # type: ignore[attr-defined]
+    page.goto(ui.url + "/")
+    expect(page.locator("#conn")).to_have_text("live", timeout=10_000)
+    yield page
+    assert page.js_errors == []  # type: ignore[attr-defined]
+    page.close()
+
+
+def _joints_deg(page: Page) -> np.ndarray:
+    names = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
+    return np.array([float(page.locator(f"#joint-{n}").inner_text()) for n in names])
+
+
+def _wait(condition, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.1)
+
+
+def test_the_video_is_live(page: Page, shots: Path) -> None:
+    _wait(lambda: page.evaluate(FRAME_CHECKSUM_JS) is not None, 10, "a first video frame")
+    assert page.evaluate("document.getElementById('video').naturalWidth") == 640
+    first_index = int(page.locator("#frame-index").inner_text())
+    first = page.evaluate(FRAME_CHECKSUM_JS)
+    time.sleep(1.0)
+    assert page.evaluate(FRAME_CHECKSUM_JS) != first  # new pictures arrive
+    assert int(page.locator("#frame-index").inner_text()) > first_index
+    expect(page.locator("#mode")).to_have_text("SIM")
+    expect(page.locator("#tracks tbody tr")).to_have_count(2)  # the bottle and the cup
+    expect(page.locator("#health tbody tr")).to_have_count(6)
+    page.locator("#show-depth").check()
+    _wait(
+        lambda: page.evaluate("document.getElementById('depth').naturalWidth") == 640,
+        10,
+        "the depth view",
+    )
+    page.screenshot(path=str(shots / "ui-depth.png"))
+    page.locator("#show-depth").uncheck()
+
+
+def test_home_brings_the_joints_home(page: Page, ui: RunningUI) -> None:
+    # The simulated arm starts in its sleep pose.
+    assert np.max(np.abs(_joints_deg(page))) > 30
+    page.locator("#btn-home").click()
+    expect(page.locator("#task-name")).to_have_text("home", timeout=5_000)
+    _wait(lambda: np.max(np.abs(_joints_deg(page))) < 1.0, 20, "the page's joints at home")
+    expect(page.locator("#task-phase")).to_have_text("succeeded", timeout=5_000)
+    assert np.max(np.abs(np.degrees(ui.system.world.joint_positions()))) < 1.0  # truth
+
+
+def test_a_detector_switches_off_and_on(page: Page, ui: RunningUI) -> None:
+    objects = page.locator("#det-objects")
+    expect(objects).to_be_checked()
+    objects.uncheck()
+    _wait(lambda: not ui.system.enabled["objects"], 5, "object detection off")
+    row = page.locator('#health tr[data-thread="objects"]')
+    expect(row).to_contain_text("off", timeout=5_000)
+    time.sleep(0.5)  # a detection under way when the switch went off may still finish
+    outputs = ui.system.meters["objects"].health(True, True, 1.0).outputs
+    time.sleep(1.0)
+    assert ui.system.meters["objects"].health(True, True, 1.0).outputs == outputs
+    objects.check()
+    _wait(lambda: ui.system.enabled["objects"], 5, "object detection on")
+    expect(row).to_contain_text("ok", timeout=10_000)
+    assert ui.system.meters["objects"].health(True, True, 1.0).outputs > outputs
+    expect(objects).to_be_checked()
+
+
+def test_stop_during_a_follow(page: Page, ui: RunningUI) -> None:
+    page.locator("#btn-follow-tag").click()
+    expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)
+    expect(page.locator("#task-message")).to_contain_text("following", timeout=15_000)
+    expect(page.locator("#btn-grab")).to_be_disabled()  # conflicting controls
+    expect(page.locator("#btn-stop")).to_be_enabled()
+    time.sleep(1.0)
+    page.locator("#btn-stop").click()
+    expect(page.locator("#task-phase")).to_have_text("stopped", timeout=3_000)
+    expect(page.locator("#task-error")).to_have_text("stopped by the operator")
+    world = ui.system.world
+    q = world.joint_positions()
+    time.sleep(0.5)
+    assert np.max(np.abs(world.joint_positions() - q)) < 0.02  # the arm holds still
+    expect(page.locator("#btn-grab")).to_be_enabled(timeout=3_000)
+
+
+def test_grab_bottle_succeeds(page: Page, ui: RunningUI, shots: Path) -> None:
+    world = ui.system.world
+    z0 = world.T_base_object("bottle")[2, 3]
+    page.locator("#btn-grab").click()
+    expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)
+    expect(page.locator("#btn-home")).to_be_disabled()
+    # The README's picture: the gripper near the bottle, progress showing.
+    _wait(
+        lambda: float(page.locator("#task-progress").get_attribute("value") or 0) >= 0.5,
+        40,
+        "the grab half done",
+    )
+    page.screenshot(path=str(shots / "ui-grab.png"))
+    expect(page.locator("#task-phase")).to_have_text("succeeded", timeout=60_000)
+    assert world.held_object() == "bottle"
+    assert world.T_base_object("bottle")[2, 3] - z0 > 0.05  # lifted, says the simulator
+    expect(page.locator("#task-result")).to_contain_text("track")
+    page.screenshot(path=str(shots / "ui-after-grab.png"))
+    assert (shots / "ui-grab.png").stat().st_size > 10_000
