@@ -168,7 +168,10 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
         ui = OperatorUI(system, config, "real" if args.real else "sim", token, saved_to)
         server = Server(ui, sock)
         _say(f"operator UI at {server.url()}  (Ctrl-C quits; the arm halts where it is)")
-        server.run()
+        try:
+            server.run()  # until Ctrl-C (uvicorn then re-raises it: exit status 130)
+        finally:
+            _say("UI closing: stopping the threads")
     _say("UI closed")
     return 0
 

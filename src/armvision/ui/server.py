@@ -578,6 +578,7 @@ def listen(host: str, port: int) -> socket.socket:
         sock = socket.socket(family, kind, proto)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(address)
+        sock.listen(128)  # connections queue from now on, before the server takes them
     except OSError as exc:
         raise ArmvisionError(
             f"cannot listen on {host}:{port} ({exc.strerror or exc}): is another armvision ui "
