@@ -208,6 +208,23 @@ def test_bad_requests_get_readable_errors(ui: RunningUI, client: httpx.Client) -
     assert ui.state(client)["task"]["phase"] != "running"  # none of them started anything
 
 
+def test_analyze_bottle_measures_the_fill(ui: RunningUI, client: httpx.Client) -> None:
+    track_id = next(t["id"] for t in ui.state(client)["tracks"] if t["label"] == "bottle")
+    r = client.post(f"{ui.url}/api/actions/analyze", json={"track_id": track_id})
+    assert r.status_code == 202
+    done = ui.wait_state(client, lambda s: s["task"]["phase"] not in ("queued", "running"), 60)
+    assert done["task"]["phase"] == "succeeded", done["task"]["error"]
+    assert done["task"]["result"]["fill"] == pytest.approx(0.6, abs=0.1)  # the scene's 60 %
+
+
+def test_follow_bottle_starts_and_stops(ui: RunningUI, client: httpx.Client) -> None:
+    assert client.post(f"{ui.url}/api/actions/follow_bottle", json={}).status_code == 202
+    ui.wait_state(client, lambda s: "following bottle" in s["task"]["message"], timeout_s=15.0)
+    client.post(f"{ui.url}/api/stop")
+    stopped = ui.wait_state(client, lambda s: s["task"]["phase"] == "stopped", timeout_s=3.0)
+    assert stopped["task"]["name"] == "follow_bottle"
+
+
 def test_follow_tag_runs_until_stopped(ui: RunningUI, client: httpx.Client) -> None:
     r = client.post(f"{ui.url}/api/actions/follow_tag", json={"duration_s": 120})
     assert r.status_code == 202
