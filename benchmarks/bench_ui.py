@@ -2,7 +2,7 @@
 
     python benchmarks/bench_ui.py [--seconds 6] [--seed 3]
 
-A realtime simulation (simulator-truth calibration, a bottle, a cup and a tag on the table)
+A realtime simulation of the fixed bench (simulator-truth calibration, a bottle, a cup and a tag)
 with its UI served by uvicorn in a thread, one client on the loopback:
 
 - state over the WebSocket: messages per second and their size (target >= 10 Hz, issue 8);
@@ -29,15 +29,8 @@ from websockets.sync.client import connect
 
 from armvision.config import Config
 from armvision.runtime.build import sim_system
-from armvision.sim.world import LooseTag, ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.world import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen
-
-
-def _scene(config: Config) -> SceneSpec:
-    bottle = ObjectSpec("bottle", "bottle", 0.032, 0.2, 0.6, "juice", x=0.40, y=0.10)
-    cup = ObjectSpec("cup", "cup", 0.034, 0.1, 0.3, "water", x=0.33, y=-0.17)
-    tag = LooseTag(config.follow.tag_id, 0.45, -0.03, 0.3, config.tag.size)
-    return SceneSpec(random_camera_pose(config.sim, None), (bottle, cup), (tag,))
 
 
 def _websocket(url: str, seconds: float) -> tuple[float, float]:
@@ -77,7 +70,7 @@ def _wait(client: httpx.Client, url: str, condition, timeout_s: float) -> dict:
 
 def measure(seconds: float, seed: int) -> dict[str, float]:
     config = Config()
-    system = sim_system(config, seed, mode="realtime", scene=_scene(config))
+    system = sim_system(config, seed, mode="realtime", scene=bench_scene(config))
     system.start()
     ui = OperatorUI(system, config, "sim")
     server = Server(ui, listen("127.0.0.1", 0)).start()

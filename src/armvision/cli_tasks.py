@@ -215,17 +215,20 @@ def cmd_eval_follow(args: argparse.Namespace, config: Config) -> int:
 # --------------------------------------------------------------------------- parsers
 
 
-def _where(parser: argparse.ArgumentParser) -> None:
+def _where(
+    parser: argparse.ArgumentParser,
+    task: bool = True,
+    calibration_help: str = "calibration file (real default: calibration.file); in simulation "
+    "the default is to calibrate now, and 'truth' uses the simulator's camera pose",
+) -> None:
+    """--sim | --real, --seed, --calibration; a one-task command also gets --realtime, --json."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
     where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
     parser.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
-    parser.add_argument(
-        "--calibration",
-        metavar="PATH",
-        help="calibration file (real default: calibration.file); in simulation the default "
-        "is to calibrate now, and 'truth' uses the simulator's camera pose",
-    )
+    parser.add_argument("--calibration", metavar="PATH", help=calibration_help)
+    if not task:
+        return
     parser.add_argument(
         "--realtime",
         action="store_true",
@@ -265,15 +268,12 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     follow.set_defaults(func=cmd_follow)
 
     ui = sub.add_parser("ui", help="the operator web UI: live video, state, every task")
-    where = ui.add_mutually_exclusive_group()
-    where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
-    where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
-    ui.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
-    ui.add_argument(
-        "--calibration",
-        metavar="PATH",
-        help="calibration file (real default: calibration.file; Calibrate saves there); in "
-        "simulation the default is to calibrate at start, and 'truth' uses the simulator's pose",
+    _where(
+        ui,
+        task=False,
+        calibration_help="calibration file (real default: calibration.file; Calibrate saves "
+        "there); in simulation the default is to calibrate at start, and 'truth' uses the "
+        "simulator's pose",
     )
     ui.add_argument(
         "--host",

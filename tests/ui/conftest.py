@@ -1,4 +1,5 @@
-"""A realtime simulated system with the operator UI served by uvicorn in a thread."""
+"""A realtime simulated system (the fixed bench: a bottle, a cup, tag 0) with the operator UI
+served by uvicorn in a thread."""
 
 from __future__ import annotations
 
@@ -12,29 +13,8 @@ import httpx
 from armvision.config import Config
 from armvision.runtime.build import sim_system
 from armvision.runtime.system import System
-from armvision.sim.world import LooseTag, ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.world import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen
-
-BOTTLE = ObjectSpec(
-    "bottle", "bottle", radius=0.032, height=0.2, fill=0.6, liquid="juice", x=0.40, y=0.10
-)
-CUP = ObjectSpec(
-    "cup",
-    "cup",
-    radius=0.034,
-    height=0.1,
-    fill=0.3,
-    liquid="water",
-    x=0.33,
-    y=-0.17,
-    colour=(0.8, 0.2, 0.2, 1.0),
-)
-
-
-def ui_scene(config: Config) -> SceneSpec:
-    """A bottle and a cup in reach, and tag 0 (follow.tag_id) on the table between them."""
-    tag = LooseTag(config.follow.tag_id, 0.45, -0.03, 0.3, config.tag.size)
-    return SceneSpec(random_camera_pose(config.sim, None), (BOTTLE, CUP), (tag,))
 
 
 @dataclass
@@ -76,7 +56,7 @@ def serve(
 def running_ui(seed: int = 3) -> Iterator[RunningUI]:
     """The system (simulator truth as calibration) and its UI on 127.0.0.1, any free port."""
     config = Config()
-    system = sim_system(config, seed, mode="realtime", scene=ui_scene(config))
+    system = sim_system(config, seed, mode="realtime", scene=bench_scene(config))
     system.start()
     try:
         with serve(system, config) as server:

@@ -348,6 +348,18 @@ def place_without_overlap(
     return [(x, y) for x, y, _ in placed]
 
 
+def bench_scene(config: Config) -> SceneSpec:
+    """A fixed bench, the same every time: a juice bottle (60 % full) and a water cup in easy
+    reach, and tag ``follow.tag_id`` lying between them, under the configured camera. For
+    tests and benchmarks of the running system and its UI."""
+    bottle = ObjectSpec("bottle", "bottle", 0.032, 0.2, 0.6, "juice", x=0.40, y=0.10)
+    cup = ObjectSpec(
+        "cup", "cup", 0.034, 0.1, 0.3, "water", x=0.33, y=-0.17, colour=(0.8, 0.2, 0.2, 1.0)
+    )
+    tag = LooseTag(config.follow.tag_id, 0.45, -0.03, 0.3, config.tag.size)
+    return SceneSpec(random_camera_pose(config.sim, None), (bottle, cup), (tag,))
+
+
 def generate_scene(config: Config, seed: int) -> SceneSpec:
     """The scene for ``seed``: camera pose, 1-4 objects and any loose tags, without overlap."""
     sim = config.sim
