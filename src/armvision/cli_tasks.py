@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from armvision.config import Config
@@ -152,6 +153,8 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
     sock = listen(host, port)  # a busy port fails before the system is built
     if args.real:
         saved_to = args.calibration or config.calibration.file
+        if not Path(saved_to).exists():
+            _say(f"no calibration at {saved_to}: the page's Calibrate makes one (clear the table)")
     else:
         saved_to = str(_sim_calibration_path(config.calibration.file))
         # A tag on the table for Follow tag (loose tags get ids 0, 1, ...: follow.tag_id 0).
@@ -160,7 +163,12 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
         )
         args.realtime = True
     try:
-        system = _system(args, config)
+        if args.real:
+            from armvision.runtime.build import real_system
+
+            system = real_system(config, saved_to, allow_uncalibrated=True)
+        else:
+            system = _system(args, config)
     except BaseException:
         sock.close()
         raise

@@ -17,7 +17,10 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from armvision.ui.server import ACTIONS, TOKEN_ENV, resolve_token
+from armvision.config import Config
+from armvision.runtime.build import sim_system, uncalibrated
+from armvision.sim.world import bench_scene
+from armvision.ui.server import ACTIONS, TOKEN_ENV, action_states, resolve_token
 
 from .conftest import RunningUI, running_ui, serve
 
@@ -291,3 +294,33 @@ def test_token_rules(monkeypatch: pytest.MonkeyPatch) -> None:
     assert resolve_token("127.0.0.1", "from-config") == "from-config"  # asked for: kept
     monkeypatch.setenv(TOKEN_ENV, "from-env")
     assert resolve_token("0.0.0.0", "from-config") == "from-env"
+
+
+# --------------------------------------------------------------------------- not calibrated
+
+
+def test_uncalibrated_nothing_moves_to_what_the_camera_sees() -> None:
+    """Without a calibration (a first start on the real arm) the page offers Home, Sleep, the
+    gripper and Calibrate, and refuses grab, analyze and the follows, saying to calibrate."""
+    config = Config()
+    with sim_system(config, 3, scene=bench_scene(config), calibration=uncalibrated(config)) as sim:
+        sim.pump(2.0)
+        state = sim.snapshot()
+    assert state.bottles()  # the camera sees the bottle ...
+    actions = action_states(state)
+    for name in ("grab", "analyze", "follow_tag", "follow_bottle"):
+        assert not actions[name]["enabled"] and "Calibrate" in actions[name]["reason"]
+    for name in ("home", "sleep", "gripper_open", "gripper_close", "calibrate"):
+        assert actions[name]["enabled"], name
+
+
+def test_the_server_refuses_what_the_page_disables(ui: RunningUI, client: httpx.Client) -> None:
+    """A request for a disabled control (e.g. from a stale page) gets the same reason."""
+    calibrated = ui.system.calibration
+    ui.system.set_calibration(uncalibrated(Config()))
+    try:
+        message = _error(client.post(f"{ui.url}/api/actions/grab", json={}), 409)
+        assert "not calibrated" in message
+        assert ui.state(client)["calibration"]["calibrated"] is False
+    finally:
+        ui.system.set_calibration(calibrated)

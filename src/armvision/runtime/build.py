@@ -102,6 +102,16 @@ def sim_system(
     )
 
 
+def uncalibrated(config: Config) -> CalibrationStatus:
+    """No calibration yet: the nominal camera placement (``sim.camera_*``), marked so that
+    nothing moves the arm to what the camera sees until a calibration is made."""
+    from armvision.sim.world import random_camera_pose
+
+    return CalibrationStatus(
+        "not calibrated", "none", None, random_camera_pose(config.sim, None), calibrated=False
+    )
+
+
 def load_calibration(path: str | os.PathLike[str]) -> CalibrationStatus:
     """A saved calibration for the runtime; CalibrationError saying what to do if unusable."""
     path = Path(path)
@@ -113,9 +123,18 @@ def load_calibration(path: str | os.PathLike[str]) -> CalibrationStatus:
     return calibration_status(load(path))
 
 
-def real_system(config: Config, calibration_path: str | os.PathLike[str]) -> System:
-    """A System on the Interbotix arm and the RealSense camera (threads, wall clock)."""
-    calibration = load_calibration(calibration_path)
+def real_system(
+    config: Config, calibration_path: str | os.PathLike[str], allow_uncalibrated: bool = False
+) -> System:
+    """A System on the Interbotix arm and the RealSense camera (threads, wall clock).
+
+    With no file at ``calibration_path`` it is an error, unless ``allow_uncalibrated`` (the UI,
+    whose Calibrate makes one): then it runs :func:`uncalibrated`.
+    """
+    if allow_uncalibrated and not Path(calibration_path).exists():
+        calibration = uncalibrated(config)
+    else:
+        calibration = load_calibration(calibration_path)
     from armvision.camera.realsense import RealSenseCamera
     from armvision.robot.interbotix import InterbotixArm
 

@@ -227,16 +227,22 @@ class TaskStatus:
 
 @dataclass(frozen=True)
 class CalibrationStatus:
-    """Which calibration the system runs with: where from, how good."""
+    """Which calibration the system runs with: where from, how good.
+
+    ``calibrated`` False: no calibration yet; ``T_base_cam`` is then only the nominal camera
+    placement, good for looking, not for moving to what the camera sees.
+    """
 
     source: str
     method: str
     residual_mm: float | None
     T_base_cam: np.ndarray
     joint_offsets_rad: np.ndarray | None = None
+    calibrated: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "calibrated": self.calibrated,
             "source": self.source,
             "method": self.method,
             "residual_mm": None if self.residual_mm is None else round(self.residual_mm, 3),

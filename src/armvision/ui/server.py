@@ -291,6 +291,8 @@ def action_states(state: SystemState) -> dict[str, dict[str, Any]]:
         reason = None
         if busy:
             reason = f"{state.task.name} is running: wait for it or press Stop"
+        elif action.needs in ("bottle", "tags") and not state.calibration.calibrated:
+            reason = "not calibrated: press Calibrate first (clear the table)"
         elif action.needs == "bottle" and not state.bottles():
             reason = "no bottle tracked (is object detection on?)"
         elif action.needs == "tags" and not state.detectors.get("tags", False):
@@ -399,6 +401,9 @@ class OperatorUI:
                     409,
                     f"{state.task.name} is running: wait for it to end or press Stop first",
                 )
+            refusal = action_states(state)[name]["reason"]
+            if refusal is not None and not state.task.active:
+                raise RequestError(409, f"{action.label}: {refusal}")
             if params.track_id is not None:
                 track = state.track(params.track_id)
                 if track is None or track.label != "bottle":
