@@ -323,7 +323,7 @@ class OperatorUI:
             raise ArmvisionError("the UI needs a running system (realtime), not a lockstep one")
         self.system = system
         self.config = config
-        self.ui = config.ui
+        self.settings = config.ui
         self.mode = mode
         self.token = token
         self.calibration_path = calibration_path
@@ -339,7 +339,7 @@ class OperatorUI:
 
     def payload(self) -> str:
         """The state JSON, made at most once per state period however many clients."""
-        period = 1.0 / self.ui.state_hz
+        period = 1.0 / self.settings.state_hz
         now = time.monotonic()
         with self._payload_lock:
             made, text = self._payload
@@ -361,7 +361,7 @@ class OperatorUI:
             if cached is not None and cached[0] == frame.index:
                 return cached
         if view == "depth":
-            image = depth_image(frame.depth, self.ui.depth_min_m, self.ui.depth_max_m)
+            image = depth_image(frame.depth, self.settings.depth_min_m, self.settings.depth_max_m)
         else:
             image = annotated(state, self.config.tag.size)
             if image is None:
@@ -369,7 +369,7 @@ class OperatorUI:
         ok, buf = cv2.imencode(
             ".jpg",
             cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
-            [cv2.IMWRITE_JPEG_QUALITY, self.ui.jpeg_quality],
+            [cv2.IMWRITE_JPEG_QUALITY, self.settings.jpeg_quality],
         )
         if not ok:
             raise ArmvisionError("JPEG encoding failed")
@@ -402,7 +402,7 @@ class OperatorUI:
                     f"{state.task.name} is running: wait for it to end or press Stop first",
                 )
             refusal = action_states(state)[name]["reason"]
-            if refusal is not None and not state.task.active:
+            if refusal is not None:
                 raise RequestError(409, f"{action.label}: {refusal}")
             if params.track_id is not None:
                 track = state.track(params.track_id)
@@ -417,7 +417,7 @@ class OperatorUI:
     def _task(self, name: str, p: ActionBody) -> tuple[Callable[..., Any], dict[str, Any]]:
         from armvision.tasks import basic
 
-        duration = p.duration_s or self.ui.follow_duration_s
+        duration = p.duration_s or self.settings.follow_duration_s
         if name in ("home", "sleep", "gripper_open", "gripper_close"):
             return getattr(basic, name), {}
         if name == "calibrate":
@@ -488,7 +488,7 @@ class OperatorUI:
         @app.websocket("/ws/state")
         async def ws_state(ws: WebSocket) -> None:
             await ws.accept()
-            period = 1.0 / ui.ui.state_hz
+            period = 1.0 / ui.settings.state_hz
             loop = asyncio.get_running_loop()
             next_time = loop.time()
             try:
@@ -517,7 +517,7 @@ class OperatorUI:
             view = _view(view)
 
             async def frames():
-                period = 1.0 / ui.ui.video_fps
+                period = 1.0 / ui.settings.video_fps
                 last = -1
                 while not ui.closing.is_set():
                     got = await run_in_threadpool(ui.jpeg, view)
