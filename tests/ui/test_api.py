@@ -215,7 +215,12 @@ def test_analyze_bottle_measures_the_fill(ui: RunningUI, client: httpx.Client) -
     track_id = next(t["id"] for t in ui.state(client)["tracks"] if t["label"] == "bottle")
     r = client.post(f"{ui.url}/api/actions/analyze", json={"track_id": track_id})
     assert r.status_code == 202
-    done = ui.wait_state(client, lambda s: s["task"]["phase"] not in ("queued", "running"), 60)
+    task_id = r.json()["task_id"]
+    done = ui.wait_state(
+        client,
+        lambda s: s["task"]["id"] == task_id and s["task"]["phase"] not in ("queued", "running"),
+        60,
+    )
     assert done["task"]["phase"] == "succeeded", done["task"]["error"]
     assert done["task"]["result"]["fill"] == pytest.approx(0.6, abs=0.1)  # the scene's 60 %
 

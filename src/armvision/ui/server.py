@@ -337,13 +337,14 @@ class OperatorUI:
 
     # ---------------------------------------------------------------- serving helpers
 
-    def payload(self) -> str:
-        """The state JSON, made at most once per state period however many clients."""
+    def payload(self, fresh: bool = False) -> str:
+        """The state JSON, made at most once per half state period however many sockets
+        (``fresh``: made now, for a request that must see its own last action)."""
         period = 1.0 / self.settings.state_hz
         now = time.monotonic()
         with self._payload_lock:
             made, text = self._payload
-            if text and now - made < 0.5 * period:
+            if text and not fresh and now - made < 0.5 * period:
                 return text
         text = json.dumps(state_payload(self.system.snapshot(), self.system, self.mode))
         with self._payload_lock:
@@ -412,7 +413,14 @@ class OperatorUI:
                         400, f"no bottle track #{params.track_id} (bottles tracked now: {have})"
                     )
             fn, kwargs = self._task(name, params)
-            return self.system.submit(name, fn, **kwargs)
+            task_id = self.system.submit(name, fn, **kwargs)
+        self.changed()
+        return task_id
+
+    def changed(self) -> None:
+        """Something was asked of the system: the next state message is made afresh."""
+        with self._payload_lock:
+            self._payload = (-math.inf, "")
 
     def _task(self, name: str, p: ActionBody) -> tuple[Callable[..., Any], dict[str, Any]]:
         from armvision.tasks import basic
@@ -483,7 +491,7 @@ class OperatorUI:
 
         @app.get("/api/state")
         async def get_state() -> Response:
-            return Response(ui.payload(), media_type="application/json")
+            return Response(ui.payload(fresh=True), media_type="application/json")
 
         @app.websocket("/ws/state")
         async def ws_state(ws: WebSocket) -> None:
@@ -552,6 +560,7 @@ class OperatorUI:
         @app.post("/api/stop")
         async def stop() -> dict[str, Any]:
             await run_in_threadpool(ui.system.stop_task)
+            ui.changed()
             return {"stopped": True}
 
         @app.post("/api/detectors/{name}")
@@ -565,6 +574,7 @@ class OperatorUI:
             except ValidationError as exc:
                 raise RequestError(400, f"{name}: {_validation_message(exc)}") from None
             ui.system.set_detector(name, body.enabled)
+            ui.changed()
             return {"detectors": dict(ui.system.enabled)}
 
         if self.token is not None:
