@@ -101,6 +101,12 @@ class HealthMeter:
             while self._times and self._times[0] < now - RATE_WINDOW_S:
                 self._times.popleft()
 
+    @property
+    def last_error(self) -> str | None:
+        """The newest failure, until the next success."""
+        with self._lock:
+            return self._last_error
+
     def error(self, message: str) -> None:
         with self._lock:
             self._errors += 1
@@ -318,7 +324,6 @@ class _Pieces:
     detections_frame: RGBDFrame | None = None
     liquid: dict[int, LiquidEstimate] = field(default_factory=dict)
     task: TaskStatus = field(default_factory=TaskStatus)
-    finger_position: float | None = None
 
 
 class StateStore:
@@ -344,7 +349,7 @@ class StateStore:
             return self._frame_seq, self._pieces.frame
 
     def set(self, **pieces: Any) -> None:
-        """Replace pieces: tags, tags_time, detections, detections_frame, finger_position."""
+        """Replace pieces: tags, tags_time, detections, detections_frame."""
         with self._lock:
             for key, value in pieces.items():
                 if not hasattr(self._pieces, key) or key in ("frame", "liquid", "task"):
@@ -383,6 +388,7 @@ class StateStore:
         health: Mapping[str, ThreadHealth],
         detectors: Mapping[str, bool],
         calibration: CalibrationStatus,
+        finger_position: float | None = None,
     ) -> SystemState:
         with self._lock:
             p = self._pieces
@@ -399,7 +405,7 @@ class StateStore:
                 detectors=MappingProxyType(dict(detectors)),
                 task=p.task,
                 calibration=calibration,
-                finger_position=p.finger_position,
+                finger_position=finger_position,
             )
 
 

@@ -441,9 +441,8 @@ class System:
             finger = float(self.arm.gripper.get_finger_position())
         except Exception:  # a gripper that cannot be read now is not a reason to fail
             finger = None
-        self.store.set(finger_position=finger)
         return self.store.snapshot(
-            self.clock(), self.fusion.snapshot(), health, self.enabled, self.calibration
+            self.clock(), self.fusion.snapshot(), health, self.enabled, self.calibration, finger
         )
 
     def _fusion_loop(self) -> FusionLoop:
@@ -551,7 +550,7 @@ class System:
                 self.meters[name].tick()
         except Exception as exc:
             message = f"{type(exc).__name__}: {exc}"
-            if self.meters[name].health(True, True, math.inf).last_error != message:
+            if self.meters[name].last_error != message:
                 log.warning("%s stage: %s", name, message)
             self.meters[name].error(message)
             self._stop.wait(0.2)  # no busy loop on a persistent fault

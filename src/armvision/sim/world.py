@@ -348,6 +348,16 @@ def place_without_overlap(
     return [(x, y) for x, y, _ in placed]
 
 
+def _rigid(T: ArrayLike, name: str) -> Array:
+    """``T`` as a finite 4x4 with an orthonormal rotation, or SimulationError naming it."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise SimulationError(f"{name} must be a finite 4x4 matrix, got shape {T.shape}")
+    if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
+        raise SimulationError(f"{name}'s rotation is not orthonormal: build it with make_T")
+    return T
+
+
 def bench_scene(config: Config) -> SceneSpec:
     """A fixed bench, the same every time: a juice bottle (60 % full) and a water cup in easy
     reach, and tag ``follow.tag_id`` lying between them, under the configured camera. For
@@ -962,11 +972,7 @@ class SimWorld:
             raise SimulationError(
                 f"no object {name!r}; the scene has {[o.name for o in self.scene.objects]}"
             )
-        T = np.asarray(T_base_obj, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise SimulationError(f"T_base_obj must be a finite 4x4 matrix, got shape {T.shape}")
-        if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
-            raise SimulationError("T_base_obj's rotation is not orthonormal: build it with make_T")
+        T = _rigid(T_base_obj, "T_base_obj")
         T_world_obj = T_WORLD_BASE @ T
         joint = self.model.body_jntadr[self._object_bodies[name]]
         qadr, dofadr = self.model.jnt_qposadr[joint], self.model.jnt_dofadr[joint]
@@ -987,11 +993,7 @@ class SimWorld:
             raise SimulationError(
                 f"no loose tag {tag_id}; the scene has {[t.tag_id for t in self.scene.loose_tags]}"
             )
-        T = np.asarray(T_base_tag, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise SimulationError(f"T_base_tag must be a finite 4x4 matrix, got shape {T.shape}")
-        if not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-6):
-            raise SimulationError("T_base_tag's rotation is not orthonormal: build it with make_T")
+        T = _rigid(T_base_tag, "T_base_tag")
         # The body is the plate; its site (the tag frame) sits at the body origin turned by
         # R_TAG_PLATE^T, so the plate's rotation is R_base_tag R_TAG_PLATE.
         T_world_plate = T_WORLD_BASE @ make_T(T[:3, :3] @ R_TAG_PLATE, T[:3, 3])

@@ -638,6 +638,16 @@ def follow(
     return _blocking(ctx, config, source, duration, moving_time)
 
 
+def _ended(
+    source: Any, now: float, start: float, duration: float, timeout: float
+) -> tuple[StopCause, str] | None:
+    """Whether a follow ends at ``now`` (its duration done, or the target lost), and why."""
+    if now - start >= duration:
+        return "duration", f"followed {source.label} for {duration:.1f} s"
+    lost = _lost_reason(source, now, start, timeout)
+    return None if lost is None else ("lost", lost)
+
+
 def _lost_reason(source: Any, now: float, start: float, timeout: float) -> str | None:
     """Why the target counts as lost at ``now``, or None if it does not."""
     seen = source.last_seen
@@ -677,12 +687,9 @@ def _servo(ctx: TaskContext, config: FollowConfig, source: Any, duration: float)
         now = ctx.now()
         wall = time.perf_counter()
         source.poll(ctx.state())
-        if now - start >= duration:
-            reason = f"followed {source.label} for {duration:.1f} s"
-            break
-        lost = _lost_reason(source, now, start, config.lost_timeout_s)
-        if lost is not None:
-            cause, reason = "lost", lost
+        ended = _ended(source, now, start, duration, config.lost_timeout_s)
+        if ended is not None:
+            cause, reason = ended
             break
         estimate = source.estimate(now)
         if estimate is not None:
@@ -778,12 +785,9 @@ def _blocking(
     while True:
         now = ctx.now()
         source.poll(ctx.state())
-        if now - start >= duration:
-            reason = f"followed {source.label} for {duration:.1f} s"
-            break
-        lost = _lost_reason(source, now, start, config.lost_timeout_s)
-        if lost is not None:
-            cause, reason = "lost", lost
+        ended = _ended(source, now, start, duration, config.lost_timeout_s)
+        if ended is not None:
+            cause, reason = ended
             break
         p_target = source.newest()
         if p_target is None:

@@ -397,12 +397,7 @@ class OperatorUI:
             )
         with self._submit:
             state = self.system.snapshot()
-            if state.task.active:
-                raise RequestError(
-                    409,
-                    f"{state.task.name} is running: wait for it to end or press Stop first",
-                )
-            refusal = action_states(state)[name]["reason"]
+            refusal = action_states(state)[name]["reason"]  # busy first, then what it needs
             if refusal is not None:
                 raise RequestError(409, f"{action.label}: {refusal}")
             if params.track_id is not None:
