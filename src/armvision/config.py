@@ -170,6 +170,20 @@ class CalibrationConfig:
     ] = "joint_kinematic"  # see README, "Calibration", for why
     outlier_mm: PositiveFloat = 5.0  # robust solvers: residuals above this (and 3 sigma) drop
     file: str = "calibration.json"  # relative paths are taken from the working directory
+    # Plausibility of a new calibration (refused unless forced): RMS residual of the fit, the
+    # spread of the tag positions sampled (RMS distance from their centroid), and how far the
+    # estimated tag mount may lie from tag.offset_ee.
+    max_residual_rms_mm: PositiveFloat = 5.0
+    min_sample_spread_m: PositiveFloat = 0.08
+    max_tag_offset_error_mm: PositiveFloat = 25.0
+    # Drift: the gripper tag as the camera sees it against where the encoders put it. A
+    # disagreement over drift_mm or drift_deg (median over drift_window_s, at least
+    # drift_min_samples detections) held for drift_persist_s marks the calibration drifted.
+    drift_mm: PositiveFloat = 10.0
+    drift_deg: PositiveFloat = 1.0
+    drift_window_s: PositiveFloat = 2.0
+    drift_min_samples: Annotated[int, Field(ge=1, le=1000)] = 10
+    drift_persist_s: Annotated[float, Field(ge=0.0)] = 1.0
 
     @field_validator("phase2_heights")
     @classmethod
@@ -355,6 +369,10 @@ class UIConfig:
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=0, le=65535)] = 8000
     token: str = ""
+    # Host names (or addresses) the page may be opened by, besides the bound address, the
+    # loopback names and this machine's host name; a request naming any other Host is refused
+    # (DNS rebinding).
+    allowed_hosts: tuple[str, ...] = ()
     state_hz: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
     video_fps: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
     jpeg_quality: Annotated[int, Field(ge=10, le=100)] = 80
