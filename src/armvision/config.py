@@ -20,9 +20,12 @@ from typing import Annotated, Any, Literal
 
 import tomli_w
 from pydantic import (
+    AfterValidator,
     BeforeValidator,
     ConfigDict,
     Field,
+    Strict,
+    StringConstraints,
     TypeAdapter,
     ValidationError,
     ValidationInfo,
@@ -37,14 +40,64 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-_STRICT = ConfigDict(extra="forbid", frozen=True)
-PositiveFloat = Annotated[float, Field(gt=0.0)]
-Vector3 = tuple[float, float, float]
+# extra="forbid": a typo is an error; allow_inf_nan=False: every float is finite (inf and NaN
+# would pass the range checks below or fail much later, far from the key).
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+# Strict scalars: a boolean is not a number (``true`` is not 1) and a number is not a boolean;
+# an int stands for a float (``moving_time = 2``), a float never for an int (``id = 3.0``).
+# Containers stay lax, so a TOML list fills a tuple field.
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
+PositiveFloat = Annotated[Float, Field(gt=0.0)]
+Seconds = Annotated[Float, Field(gt=0.0, le=600.0)]  # a wait, timeout or window: 10 min at most
+MovingTime = Annotated[Float, Field(gt=0.0, le=60.0)]  # one arm move
+# Positions in metres (the arm reaches 0.75 m; nothing it uses lies beyond a metre or two).
+Vector3 = tuple[
+    Annotated[Float, Field(ge=-2.0, le=2.0)],
+    Annotated[Float, Field(ge=-2.0, le=2.0)],
+    Annotated[Float, Field(ge=-2.0, le=2.0)],
+]
+
+
+def _usable_text(text: str) -> str:
+    if not text.isprintable():
+        raise ValueError("must not hold control characters (newline, tab, NUL)")
+    return text
+
+
+# A name, path or address: not empty, one printable line (a NUL in a path makes open() raise).
+Text = Annotated[
+    str, Strict(), StringConstraints(min_length=1, max_length=4096), AfterValidator(_usable_text)
+]
 # RealSense serials are digits; accept them unquoted in TOML and on the command line.
-SerialNumber = Annotated[str | None, BeforeValidator(lambda v: str(v) if isinstance(v, int) else v)]
+SerialNumber = Annotated[
+    Text | None,
+    BeforeValidator(
+        lambda v: (
+            str(v) if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 10**20 else v
+        )
+    ),
+]
 
 ENV_VAR = "ARMVISION_CONFIG"
 LOCAL_FILE = "armvision.toml"
+
+
+def _at_most_half(value: float, info: ValidationInfo, other: str) -> float:
+    limit = info.data.get(other)
+    if limit is not None and value > limit / 2.0:
+        raise ValueError(f"must be at most half of {other} ({limit} s)")
+    return value
+
+
+def _above(value: float, info: ValidationInfo, other: str, *, equal: bool = False) -> float:
+    """``value`` must exceed (or with ``equal`` at least equal) the field ``other`` before it."""
+    low = info.data.get(other)
+    if low is not None and (value < low if equal else value <= low):
+        raise ValueError(f"must be {'at least' if equal else 'greater than'} {other} ({low})")
+    return value
 
 
 @dataclass(config=_STRICT)
@@ -52,19 +105,21 @@ class RobotConfig:
     """The arm. Timing defaults are Interbotix's (InterbotixManipulatorXS)."""
 
     model: Literal["vx300s"] = "vx300s"
-    moving_time: PositiveFloat = 2.0
-    accel_time: Annotated[float, Field(ge=0.0)] = 0.3
-    gripper_pressure: Annotated[float, Field(ge=0.0, le=1.0)] = 0.5
-    group_name: str = "arm"
-    gripper_name: str = "gripper"
+    moving_time: MovingTime = 2.0
+    # validate_default: checked against moving_time when only moving_time is set.
+    accel_time: Annotated[Float, Field(ge=0.0, le=30.0, validate_default=True)] = 0.3
+    gripper_pressure: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
+    group_name: Text = "arm"
+    gripper_name: Text = "gripper"
 
     @field_validator("accel_time")
     @classmethod
     def _accel_within_move(cls, accel_time: float, info: ValidationInfo) -> float:
-        moving_time = info.data.get("moving_time")
-        if moving_time is not None and accel_time > moving_time / 2.0:
-            raise ValueError(f"must be at most half of moving_time ({moving_time} s)")
-        return accel_time
+        return _at_most_half(accel_time, info, "moving_time")
+
+
+#: Codes per AprilTag family (the AprilTag 3 library's tag36h11.c etc.): ids run 0..n-1.
+TAG_FAMILY_SIZES = {"tag36h11": 587, "tag25h9": 35, "tag16h5": 30, "tagStandard41h12": 2115}
 
 
 @dataclass(config=_STRICT)
@@ -72,20 +127,110 @@ class TagConfig:
     """The AprilTag on the gripper: the paper's tag36h11 id 96, 10 cm behind and 3 cm above ee."""
 
     family: Literal["tag36h11", "tag25h9", "tag16h5", "tagStandard41h12"] = "tag36h11"
-    id: Annotated[int, Field(ge=0)] = 96
-    size: PositiveFloat = 0.04  # edge of the black square, metres (pupil-apriltags' tag_size)
+    id: Annotated[Int, Field(ge=0, validate_default=True)] = 96
+    size: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.04  # edge of the black square, metres
     offset_ee: Vector3 = (-0.1, 0.0, 0.03)  # tag centre in the ee frame, metres
+
+    @field_validator("id")
+    @classmethod
+    def _id_in_family(cls, tag_id: int, info: ValidationInfo) -> int:
+        family = info.data.get("family")
+        if family is not None and tag_id >= TAG_FAMILY_SIZES[family]:
+            raise ValueError(f"tag.family {family} has ids 0 to {TAG_FAMILY_SIZES[family] - 1}")
+        return tag_id
+
+
+# The D435/D435i's modes, from Intel's "Intel RealSense Product Family D400 Series Datasheet"
+# (document 337029), "Image formats on USB 3.x": resolution -> frame rates. The RGB sensor's
+# colour stream and the depth (Z16) stream; 90 and 300 FPS depth modes are left out, colour
+# stops at 60. RealSenseCamera streams depth at the colour's resolution (enable_stream of both
+# with camera.width x camera.height, depth then aligned to colour), so a live camera needs the
+# size in both tables; a recording (camera.bag) holds depth already paired with its colour, so
+# there any colour mode plays. The simulated camera emulates the live D435i, hence the same set.
+D435I_COLOUR_MODES: dict[tuple[int, int], tuple[int, ...]] = {
+    (320, 180): (6, 30, 60),
+    (320, 240): (6, 30, 60),
+    (424, 240): (6, 15, 30, 60),
+    (640, 360): (6, 15, 30, 60),
+    (640, 480): (6, 15, 30, 60),
+    (848, 480): (6, 15, 30, 60),
+    (960, 540): (6, 15, 30, 60),
+    (1280, 720): (6, 15, 30),
+    (1920, 1080): (6, 15, 30),
+}
+D435I_DEPTH_MODES: dict[tuple[int, int], tuple[int, ...]] = {
+    (424, 240): (6, 15, 30, 60, 90),
+    (480, 270): (6, 15, 30, 60, 90),
+    (640, 360): (6, 15, 30, 60, 90),
+    (640, 480): (6, 15, 30, 60, 90),
+    (848, 480): (6, 15, 30, 60, 90),
+    (1280, 720): (6, 15, 30),
+}
+#: Colour and depth at the same size and rate: what ``camera.width/height/fps`` may be live.
+D435I_MODES: dict[tuple[int, int], tuple[int, ...]] = {
+    size: tuple(fps for fps in rates if fps in D435I_DEPTH_MODES.get(size, ()))
+    for size, rates in D435I_COLOUR_MODES.items()
+    if size in D435I_DEPTH_MODES
+}
+
+
+def _camera_modes(bag: str | None) -> dict[tuple[int, int], tuple[int, ...]]:
+    return D435I_MODES if bag is None else D435I_COLOUR_MODES
+
+
+def _list_modes(modes: dict[tuple[int, int], tuple[int, ...]]) -> str:
+    return ", ".join(f"{w}x{h}@{'/'.join(map(str, rates))}" for (w, h), rates in modes.items())
+
+
+def _mode_error(what: str, bag: str | None) -> ValueError:
+    kind = "a recording's colour (camera.bag)" if bag is not None else "colour and aligned depth"
+    return ValueError(
+        f"{what} is not a D435i mode for {kind}; set camera.width, camera.height and "
+        f"camera.fps to one of {_list_modes(_camera_modes(bag))} (WxH@fps)"
+    )
 
 
 @dataclass(config=_STRICT)
 class CameraConfig:
-    """The RealSense D435i streams: colour and aligned depth at 640x480, 30 FPS."""
+    """The RealSense D435i streams: colour and aligned depth at 640x480, 30 FPS.
 
-    width: Annotated[int, Field(gt=0)] = 640
-    height: Annotated[int, Field(gt=0)] = 480
-    fps: Literal[6, 15, 30, 60] = 30
+    ``width`` x ``height`` @ ``fps`` must be a mode the D435i streams (``D435I_MODES``; with a
+    ``bag`` any of its colour modes, ``D435I_COLOUR_MODES``).
+    """
+
     serial: SerialNumber = None  # choose one of several cameras; None = the first found
-    bag: str | None = None  # play back a recording (.bag, or .db3 as librealsense 2.59 writes)
+    bag: Text | None = None  # play back a recording (.bag, or .db3 as librealsense 2.59 writes)
+    # validate_default: the mode is checked whichever of the three is set.
+    width: Annotated[Int, Field(validate_default=True)] = 640
+    height: Annotated[Int, Field(validate_default=True)] = 480
+    fps: Annotated[Int, Field(validate_default=True)] = 30
+
+    @field_validator("width")
+    @classmethod
+    def _known_width(cls, width: int, info: ValidationInfo) -> int:
+        bag = info.data.get("bag")
+        if width not in {w for w, _ in _camera_modes(bag)}:
+            raise _mode_error(f"width {width}", bag)
+        return width
+
+    @field_validator("height")
+    @classmethod
+    def _known_size(cls, height: int, info: ValidationInfo) -> int:
+        bag, width = info.data.get("bag"), info.data.get("width")
+        if width is not None and (width, height) not in _camera_modes(bag):
+            raise _mode_error(f"{width}x{height}", bag)
+        return height
+
+    @field_validator("fps")
+    @classmethod
+    def _known_mode(cls, fps: int, info: ValidationInfo) -> int:
+        bag, width, height = info.data.get("bag"), info.data.get("width"), info.data.get("height")
+        if width is None or height is None:
+            if fps not in {f for rates in D435I_COLOUR_MODES.values() for f in rates}:
+                raise _mode_error(f"{fps} fps", bag)
+        elif fps not in _camera_modes(bag)[(width, height)]:
+            raise _mode_error(f"{width}x{height}@{fps}", bag)
+        return fps
 
 
 @dataclass(config=_STRICT)
@@ -96,38 +241,63 @@ class SimConfig:
     horizontally from the base axis at ``camera_azimuth_deg`` (0 = on the base's +x axis),
     ``camera_height`` above the table top, facing the base and pitched down by
     ``camera_pitch_deg``. With ``randomize_camera`` every seed adds a uniform offset within
-    the ``*_jitter`` ranges (plus, minus).
+    the ``*_jitter`` ranges (plus, minus); the jittered distance stays beyond 0.3 m and the
+    jittered height above the table top.
     """
 
-    camera_distance: Annotated[float, Field(gt=0.3, le=3.0)] = 1.0
-    camera_azimuth_deg: Annotated[float, Field(ge=-180.0, le=180.0)] = 0.0
-    camera_height: Annotated[float, Field(ge=0.0, le=2.0)] = 0.45
-    camera_pitch_deg: Annotated[float, Field(ge=0.0, le=89.0)] = 30.0
-    randomize_camera: bool = False
-    camera_distance_jitter: Annotated[float, Field(ge=0.0)] = 0.1
-    camera_azimuth_jitter_deg: Annotated[float, Field(ge=0.0)] = 10.0
-    camera_height_jitter: Annotated[float, Field(ge=0.0)] = 0.05
-    camera_pitch_jitter_deg: Annotated[float, Field(ge=0.0)] = 5.0
-    min_objects: Annotated[int, Field(ge=0, le=4)] = 1
-    max_objects: Annotated[int, Field(ge=0, le=4)] = 4
-    loose_tags: Annotated[int, Field(ge=0, le=4)] = 0  # extra tags lying on the table
-    depth_noise: bool = True  # Intel's RMS model, quantisation, edge and range dropouts
-    depth_min: PositiveFloat = 0.28  # D435 minimum depth at 640x480, metres
-    depth_max: PositiveFloat = 3.0
-    encoder_noise_deg: Annotated[float, Field(ge=0.0)] = 0.1  # per reading, 1 sigma
-    encoder_bias_deg: Annotated[float, Field(ge=0.0)] = 0.3  # per joint and seed, at most
-    timestep: Annotated[float, Field(gt=0.0, le=0.01)] = 0.002  # physics step, seconds
+    camera_distance: Annotated[Float, Field(gt=0.3, le=3.0)] = 1.0
+    camera_azimuth_deg: Annotated[Float, Field(ge=-180.0, le=180.0)] = 0.0
+    camera_height: Annotated[Float, Field(ge=0.0, le=2.0)] = 0.45
+    camera_pitch_deg: Annotated[Float, Field(ge=0.0, le=89.0)] = 30.0
+    randomize_camera: Bool = False
+    # validate_default (distance, height): checked against the placement when only that is set.
+    camera_distance_jitter: Annotated[Float, Field(ge=0.0, le=1.0, validate_default=True)] = 0.1
+    camera_azimuth_jitter_deg: Annotated[Float, Field(ge=0.0, le=180.0)] = 10.0
+    camera_height_jitter: Annotated[Float, Field(ge=0.0, le=1.0, validate_default=True)] = 0.05
+    camera_pitch_jitter_deg: Annotated[Float, Field(ge=0.0, le=45.0)] = 5.0
+    min_objects: Annotated[Int, Field(ge=0, le=4)] = 1
+    max_objects: Annotated[Int, Field(ge=0, le=4, validate_default=True)] = 4
+    loose_tags: Annotated[Int, Field(ge=0, le=4)] = 0  # extra tags lying on the table
+    depth_noise: Bool = True  # Intel's RMS model, quantisation, edge and range dropouts
+    depth_min: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.28  # D435 minimum at 640x480, m
+    # z16 in millimetres ends at 65.535 m; validate_default: checked against depth_min.
+    depth_max: Annotated[Float, Field(gt=0.0, le=65.0, validate_default=True)] = 3.0
+    encoder_noise_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.1  # per reading, 1 sigma
+    encoder_bias_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.3  # per joint and seed
+    timestep: Annotated[Float, Field(gt=0.0, le=0.01)] = 0.002  # physics step, seconds
     # Random light direction, brightness and ambient per seed (see sim.world.random_lighting);
     # off by default so the default scenes keep their fixed lighting.
-    randomize_lighting: bool = False
+    randomize_lighting: Bool = False
+
+    @field_validator("camera_distance_jitter")
+    @classmethod
+    def _distance_stays_out(cls, jitter: float, info: ValidationInfo) -> float:
+        distance = info.data.get("camera_distance")
+        if distance is not None and distance - jitter <= 0.3:
+            raise ValueError(
+                f"camera_distance ({distance} m) minus this must stay above 0.3 m (the base)"
+            )
+        return jitter
+
+    @field_validator("camera_height_jitter")
+    @classmethod
+    def _height_stays_up(cls, jitter: float, info: ValidationInfo) -> float:
+        height = info.data.get("camera_height")
+        if height is not None and height - jitter < 0.0:
+            raise ValueError(
+                f"must be at most camera_height ({height} m): the camera stays above the table"
+            )
+        return jitter
 
     @field_validator("max_objects")
     @classmethod
     def _max_at_least_min(cls, max_objects: int, info: ValidationInfo) -> int:
-        min_objects = info.data.get("min_objects")
-        if min_objects is not None and max_objects < min_objects:
-            raise ValueError(f"must be at least min_objects ({min_objects})")
-        return max_objects
+        return _above(max_objects, info, "min_objects", equal=True)
+
+    @field_validator("depth_max")
+    @classmethod
+    def _depth_range(cls, depth_max: float, info: ValidationInfo) -> float:
+        return _above(depth_max, info, "depth_min")
 
 
 @dataclass(config=_STRICT)
@@ -143,18 +313,18 @@ class CalibrationConfig:
     (see ``armvision.calibration.solve.METHODS``); ``file`` where the result is kept.
     """
 
-    radius: Annotated[float, Field(gt=0.1, le=0.75)] = 0.4
-    phase1_height: Annotated[float, Field(ge=0.02, le=0.7)] = 0.2
-    phase1_poses: Annotated[int, Field(ge=3, le=32)] = 8
-    phase1_tilt_deg: Annotated[float, Field(ge=0.0, le=90.0)] = 60.0
-    phase2_azimuths: Annotated[int, Field(ge=1, le=16)] = 4
-    phase2_heights: tuple[float, ...] = (0.1, 0.2, 0.3)
-    extra_poses: Annotated[int, Field(ge=0, le=100)] = 8
-    extra_tilt_deg: Annotated[float, Field(ge=0.0, le=60.0)] = 30.0
-    detections_per_pose: Annotated[int, Field(ge=1, le=100)] = 5
-    settle_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.5
-    moving_time: PositiveFloat = 2.0
-    min_samples: Annotated[int, Field(ge=3)] = 6
+    radius: Annotated[Float, Field(gt=0.1, le=0.75)] = 0.4
+    phase1_height: Annotated[Float, Field(ge=0.02, le=0.7)] = 0.2
+    phase1_poses: Annotated[Int, Field(ge=3, le=32)] = 8
+    phase1_tilt_deg: Annotated[Float, Field(ge=0.0, le=90.0)] = 60.0
+    phase2_azimuths: Annotated[Int, Field(ge=1, le=16)] = 4
+    phase2_heights: Annotated[tuple[Float, ...], Field(max_length=16)] = (0.1, 0.2, 0.3)
+    extra_poses: Annotated[Int, Field(ge=0, le=100)] = 8
+    extra_tilt_deg: Annotated[Float, Field(ge=0.0, le=60.0)] = 30.0
+    detections_per_pose: Annotated[Int, Field(ge=1, le=100)] = 5
+    settle_s: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.5
+    moving_time: MovingTime = 2.0
+    min_samples: Annotated[Int, Field(ge=3, le=1000)] = 6
     method: Literal[
         "svd",
         "robust_svd",
@@ -168,22 +338,23 @@ class CalibrationConfig:
         "shah",
         "li",
     ] = "joint_kinematic"  # see README, "Calibration", for why
-    outlier_mm: PositiveFloat = 5.0  # robust solvers: residuals above this (and 3 sigma) drop
-    file: str = "calibration.json"  # relative paths are taken from the working directory
+    # robust solvers: residuals above this (and 3 sigma) drop
+    outlier_mm: Annotated[Float, Field(gt=0.0, le=1000.0)] = 5.0
+    file: Text = "calibration.json"  # relative paths are taken from the working directory
     # Plausibility of a new calibration (refused unless forced): RMS residual of the fit, the
     # spread of the tag positions sampled (RMS distance from their centroid), and how far the
     # estimated tag mount may lie from tag.offset_ee.
-    max_residual_rms_mm: PositiveFloat = 5.0
-    min_sample_spread_m: PositiveFloat = 0.08
-    max_tag_offset_error_mm: PositiveFloat = 25.0
+    max_residual_rms_mm: Annotated[Float, Field(gt=0.0, le=1000.0)] = 5.0
+    min_sample_spread_m: Annotated[Float, Field(gt=0.0, le=2.0)] = 0.08
+    max_tag_offset_error_mm: Annotated[Float, Field(gt=0.0, le=1000.0)] = 25.0
     # Drift: the gripper tag as the camera sees it against where the encoders put it. A
     # disagreement over drift_mm or drift_deg (median over drift_window_s, at least
     # drift_min_samples detections) held for drift_persist_s marks the calibration drifted.
-    drift_mm: PositiveFloat = 10.0
-    drift_deg: PositiveFloat = 1.0
-    drift_window_s: PositiveFloat = 2.0
-    drift_min_samples: Annotated[int, Field(ge=1, le=1000)] = 10
-    drift_persist_s: Annotated[float, Field(ge=0.0)] = 1.0
+    drift_mm: Annotated[Float, Field(gt=0.0, le=1000.0)] = 8.0
+    drift_deg: Annotated[Float, Field(gt=0.0, le=180.0)] = 1.0
+    drift_window_s: Seconds = 2.0
+    drift_min_samples: Annotated[Int, Field(ge=1, le=1000)] = 10
+    drift_persist_s: Annotated[Float, Field(ge=0.0, le=600.0)] = 1.0
 
     @field_validator("phase2_heights")
     @classmethod
@@ -222,44 +393,41 @@ class FusionConfig:
     a detection the gate leaves over joins a leftover track within ``reassociation_radius`` m.
     """
 
-    rate_hz: Annotated[float, Field(gt=0.0, le=2000.0)] = 100.0
+    rate_hz: Annotated[Float, Field(gt=0.0, le=2000.0)] = 100.0
     motion_model: Literal["cv", "ca"] = "cv"
-    accel_noise: PositiveFloat = 0.1
-    jerk_noise: PositiveFloat = 2.0
-    adaptive_noise: bool = True
-    adaptive_fading: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
-    adaptive_threshold: Annotated[float, Field(ge=1.0)] = 2.0
-    adaptive_max_scale: Annotated[float, Field(ge=1.0)] = 1000.0
-    gate_probability: Annotated[float, Field(gt=0.5, lt=1.0)] = 0.999
-    max_rejections: Annotated[int, Field(ge=1)] = 5
-    history_s: Annotated[float, Field(ge=0.0, le=10.0)] = 0.5
-    encoder_noise_deg: PositiveFloat = 0.1
+    accel_noise: Annotated[Float, Field(gt=0.0, le=100.0)] = 0.1
+    jerk_noise: Annotated[Float, Field(gt=0.0, le=1000.0)] = 2.0
+    adaptive_noise: Bool = True
+    adaptive_fading: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.1
+    adaptive_threshold: Annotated[Float, Field(ge=1.0, le=1000.0)] = 2.0
+    adaptive_max_scale: Annotated[Float, Field(ge=1.0, le=1e6)] = 1000.0
+    gate_probability: Annotated[Float, Field(gt=0.5, lt=1.0)] = 0.999
+    max_rejections: Annotated[Int, Field(ge=1, le=1000)] = 5
+    history_s: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.5
+    encoder_noise_deg: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.1
     encoder_bias: Literal["joint", "cartesian", "none"] = "joint"
-    encoder_bias_deg: Annotated[float, Field(ge=0.0, le=10.0)] = 0.3
-    cartesian_bias_sigma: PositiveFloat = 0.003
-    cartesian_bias_walk: Annotated[float, Field(ge=0.0)] = 0.001
-    estimate_camera_pose: bool = True
-    calibration_translation_error: Annotated[float, Field(ge=0.0, le=0.1)] = 0.002
-    calibration_rotation_error_deg: Annotated[float, Field(ge=0.0, le=10.0)] = 0.2
-    camera_pixel_sigma: PositiveFloat = 0.5
-    camera_depth_scale: Annotated[float, Field(ge=0.0)] = 0.3
-    camera_sigma_floor: Annotated[float, Field(ge=0.0)] = 0.0005
-    tag_rotation_sigma_deg: PositiveFloat = 0.5
-    object_accel_noise: PositiveFloat = 0.05
-    object_sigma_floor: PositiveFloat = 0.002
-    confirm_hits: Annotated[int, Field(ge=1)] = 3
+    encoder_bias_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.3
+    cartesian_bias_sigma: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.003
+    cartesian_bias_walk: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.001
+    estimate_camera_pose: Bool = True
+    calibration_translation_error: Annotated[Float, Field(ge=0.0, le=0.1)] = 0.002
+    calibration_rotation_error_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.2
+    camera_pixel_sigma: Annotated[Float, Field(gt=0.0, le=100.0)] = 0.5
+    camera_depth_scale: Annotated[Float, Field(ge=0.0, le=100.0)] = 0.3
+    camera_sigma_floor: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.0005
+    tag_rotation_sigma_deg: Annotated[Float, Field(gt=0.0, le=180.0)] = 0.5
+    object_accel_noise: Annotated[Float, Field(gt=0.0, le=100.0)] = 0.05
+    object_sigma_floor: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.002
+    confirm_hits: Annotated[Int, Field(ge=1, le=1000)] = 3
     # validate_default: the check against confirm_hits runs when only confirm_hits is set.
-    confirm_window: Annotated[int, Field(ge=1, validate_default=True)] = 5
-    drop_after_s: PositiveFloat = 1.0
-    reassociation_radius: Annotated[float, Field(ge=0.0, le=0.5)] = 0.04
+    confirm_window: Annotated[Int, Field(ge=1, le=1000, validate_default=True)] = 5
+    drop_after_s: Seconds = 1.0
+    reassociation_radius: Annotated[Float, Field(ge=0.0, le=0.5)] = 0.04
 
     @field_validator("confirm_window")
     @classmethod
     def _window_holds_hits(cls, confirm_window: int, info: ValidationInfo) -> int:
-        hits = info.data.get("confirm_hits")
-        if hits is not None and confirm_window < hits:
-            raise ValueError(f"must be at least confirm_hits ({hits})")
-        return confirm_window
+        return _above(confirm_window, info, "confirm_hits", equal=True)
 
 
 @dataclass(config=_STRICT)
@@ -273,15 +441,15 @@ class RuntimeConfig:
     and stopping a thread may take at most ``join_timeout_s``.
     """
 
-    tag_hz: Annotated[float, Field(gt=0.0, le=120.0)] = 30.0
-    object_hz: Annotated[float, Field(gt=0.0, le=120.0)] = 10.0
-    liquid_hz: Annotated[float, Field(gt=0.0, le=60.0)] = 2.0
-    liquid_window: Annotated[int, Field(ge=1, le=100)] = 8
-    tag_detection: bool = True
-    object_detection: bool = True
-    liquid_detection: bool = True
-    stale_s: PositiveFloat = 1.0
-    join_timeout_s: PositiveFloat = 3.0
+    tag_hz: Annotated[Float, Field(gt=0.0, le=120.0)] = 30.0
+    object_hz: Annotated[Float, Field(gt=0.0, le=120.0)] = 10.0
+    liquid_hz: Annotated[Float, Field(gt=0.0, le=60.0)] = 2.0
+    liquid_window: Annotated[Int, Field(ge=1, le=100)] = 8
+    tag_detection: Bool = True
+    object_detection: Bool = True
+    liquid_detection: Bool = True
+    stale_s: Seconds = 1.0
+    join_timeout_s: Seconds = 3.0
 
 
 @dataclass(config=_STRICT)
@@ -297,15 +465,15 @@ class GrabConfig:
     """
 
     safe_pose: Vector3 = (0.1, 0.0, 0.65)
-    standoff: PositiveFloat = 0.15
-    grasp_height_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.45
-    lift: PositiveFloat = 0.10
-    min_base_distance: Annotated[float, Field(ge=0.0)] = 0.05
-    retries: Annotated[int, Field(ge=0, le=10)] = 2
-    retry_delay_s: Annotated[float, Field(ge=0.0)] = 0.5
-    timeout_s: PositiveFloat = 30.0
-    moving_time: PositiveFloat = 1.5
-    track_wait_s: PositiveFloat = 10.0
+    standoff: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.15
+    grasp_height_fraction: Annotated[Float, Field(gt=0.0, lt=1.0)] = 0.45
+    lift: Annotated[Float, Field(gt=0.0, le=0.5)] = 0.10
+    min_base_distance: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.05
+    retries: Annotated[Int, Field(ge=0, le=10)] = 2
+    retry_delay_s: Annotated[Float, Field(ge=0.0, le=60.0)] = 0.5
+    timeout_s: Annotated[Float, Field(gt=0.0, le=3600.0)] = 30.0
+    moving_time: MovingTime = 1.5
+    track_wait_s: Seconds = 10.0
 
 
 @dataclass(config=_STRICT)
@@ -320,16 +488,16 @@ class FollowConfig:
     the tag to follow (a tag other than the gripper's).
     """
 
-    rate_hz: Annotated[float, Field(ge=1.0, le=200.0)] = 50.0
-    duration_s: PositiveFloat = 20.0
-    tag_id: Annotated[int, Field(ge=0)] = 0
-    standoff: Annotated[float, Field(ge=0.0)] = 0.12
-    height_offset: float = 0.10
-    gain: PositiveFloat = 4.0
-    damping: PositiveFloat = 0.05
-    max_speed: PositiveFloat = 0.25
-    max_accel: PositiveFloat = 1.0
-    lost_timeout_s: PositiveFloat = 0.5
+    rate_hz: Annotated[Float, Field(ge=1.0, le=200.0)] = 50.0
+    duration_s: Annotated[Float, Field(gt=0.0, le=86400.0)] = 20.0  # a day at most
+    tag_id: Annotated[Int, Field(ge=0, lt=max(TAG_FAMILY_SIZES.values()))] = 0
+    standoff: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.12
+    height_offset: Annotated[Float, Field(ge=-1.0, le=1.0)] = 0.10
+    gain: Annotated[Float, Field(gt=0.0, le=100.0)] = 4.0
+    damping: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.05
+    max_speed: Annotated[Float, Field(gt=0.0, le=5.0)] = 0.25
+    max_accel: Annotated[Float, Field(gt=0.0, le=50.0)] = 1.0
+    lost_timeout_s: Seconds = 0.5
 
 
 @dataclass(config=_STRICT)
@@ -346,12 +514,18 @@ class AnalyzeConfig:
     presentation included (about 25 s of it); a bottle that was moved is always put back.
     """
 
-    frames: Annotated[int, Field(ge=1, le=100)] = 8
-    min_confidence: Annotated[float, Field(ge=0.0, le=1.0)] = 0.5
-    min_box_height_px: Annotated[float, Field(ge=0.0)] = 60.0
-    allow_pick: bool = True
-    present_distance: PositiveFloat = 0.55
-    timeout_s: PositiveFloat = 60.0
+    frames: Annotated[Int, Field(ge=1, le=100)] = 8
+    min_confidence: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
+    min_box_height_px: Annotated[Float, Field(ge=0.0, le=1080.0)] = 60.0  # the tallest image
+    allow_pick: Bool = True
+    present_distance: Annotated[Float, Field(gt=0.0, le=3.0)] = 0.55
+    timeout_s: Annotated[Float, Field(gt=0.0, le=3600.0)] = 60.0
+
+
+def _token_text(token: str) -> str:
+    if any(c.isspace() for c in token):
+        raise ValueError("must not hold spaces or other whitespace")
+    return _usable_text(token)
 
 
 @dataclass(config=_STRICT)
@@ -366,19 +540,25 @@ class UIConfig:
     colours. ``follow_duration_s`` is the follow buttons' default length.
     """
 
-    host: str = "127.0.0.1"
-    port: Annotated[int, Field(ge=0, le=65535)] = 8000
-    token: str = ""
+    host: Text = "127.0.0.1"
+    port: Annotated[Int, Field(ge=0, le=65535)] = 8000
+    token: Annotated[str, Strict(), Field(max_length=4096), AfterValidator(_token_text)] = ""
     # Host names (or addresses) the page may be opened by, besides the bound address, the
     # loopback names and this machine's host name; a request naming any other Host is refused
     # (DNS rebinding).
-    allowed_hosts: tuple[str, ...] = ()
-    state_hz: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
-    video_fps: Annotated[float, Field(ge=1.0, le=60.0)] = 15.0
-    jpeg_quality: Annotated[int, Field(ge=10, le=100)] = 80
-    depth_min_m: Annotated[float, Field(ge=0.0)] = 0.2
-    depth_max_m: PositiveFloat = 2.0
-    follow_duration_s: PositiveFloat = 60.0
+    allowed_hosts: Annotated[tuple[Text, ...], Field(max_length=256)] = ()
+    state_hz: Annotated[Float, Field(ge=1.0, le=60.0)] = 15.0
+    video_fps: Annotated[Float, Field(ge=1.0, le=60.0)] = 15.0
+    jpeg_quality: Annotated[Int, Field(ge=10, le=100)] = 80
+    depth_min_m: Annotated[Float, Field(ge=0.0, le=65.0)] = 0.2
+    # validate_default: checked against depth_min_m when only that is set.
+    depth_max_m: Annotated[Float, Field(gt=0.0, le=65.0, validate_default=True)] = 2.0
+    follow_duration_s: Annotated[Float, Field(gt=0.0, le=86400.0)] = 60.0
+
+    @field_validator("depth_max_m")
+    @classmethod
+    def _depth_range(cls, depth_max_m: float, info: ValidationInfo) -> float:
+        return _above(depth_max_m, info, "depth_min_m")
 
 
 @dataclass(config=_STRICT)
@@ -405,8 +585,26 @@ def _parse_value(text: str) -> Any:
     """An override value parsed as TOML (numbers, booleans, [lists]); bare words are strings."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (ValueError, RecursionError):  # TOMLDecodeError; an int too long to convert
         return text
+
+
+def _clean(text: str, limit: int | None = None) -> str:
+    """``text`` fit for a one-line message: control characters escaped, at most ``limit``."""
+    if not text.isprintable():
+        text = text.encode("unicode_escape", "backslashreplace").decode("ascii")
+    if limit is not None and len(text) > limit:
+        text = text[: limit - 3] + "..."
+    return text
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """A short ``repr`` of a (possibly huge or nested) input value for an error message."""
+    try:
+        text = repr(value)
+    except ValueError:  # holds an int with more digits than Python turns into text
+        text = f"a {type(value).__name__} holding a huge integer"
+    return _clean(text, limit)
 
 
 def known_keys(cls: type | None = None, prefix: str = "") -> list[str]:
@@ -426,25 +624,31 @@ def apply_override(data: dict[str, Any], assignment: str) -> None:
     """Apply one ``section.key=value`` assignment to a raw config dict, in place."""
     key, sep, value = assignment.partition("=")
     key = key.strip()
+    shown = _show(assignment, 80)
     if not sep or not key:
-        raise ConfigError(f"override {assignment!r} must look like section.key=value")
-    *parents, leaf = key.split(".")
+        raise ConfigError(f"override {shown} must look like section.key=value")
+    if "\n" in assignment or "\r" in assignment:
+        raise ConfigError(f"override {shown}: the key and value must be on one line")
+    if any(not part.strip() for part in key.split(".")):
+        raise ConfigError(f"override {shown}: the key has an empty part (write section.key)")
+    *parents, leaf = (part.strip() for part in key.split("."))
     node = data
     for part in parents:
         child = node.setdefault(part, {})
         if not isinstance(child, dict):
-            raise ConfigError(f"override {assignment!r}: {part!r} is a value, not a section")
+            raise ConfigError(f"override {shown}: {_show(part)} is a value, not a section")
         node = child
     node[leaf] = _parse_value(value.strip())
 
 
 def _describe(error: dict[str, Any]) -> str:
-    key = ".".join(str(part) for part in error["loc"]) or "(top level)"
+    key = _clean(".".join(str(part) for part in error["loc"]), 120) or "(top level)"
     if error["type"] in ("unexpected_keyword_argument", "extra_forbidden"):
         return f"unknown key '{key}'"
     if error["type"] == "missing_argument":
         return f"'{key}' is required"
-    return f"'{key}': {error['msg']} (got {error.get('input')!r})"
+    msg = error["msg"].removeprefix("Value error, ")  # our own validators' messages
+    return f"'{key}': {_clean(msg)} (got {_show(error.get('input'))})"
 
 
 def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Config:
@@ -452,8 +656,8 @@ def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Con
     try:
         return _ADAPTER.validate_python(data)
     except ValidationError as exc:
-        errors = exc.errors()
-        message = f"{source}: " + "; ".join(_describe(e) for e in errors)
+        errors = exc.errors(include_url=False)
+        message = f"{_clean(source)}: " + "; ".join(_describe(e) for e in errors)
         if any(e["type"] in ("unexpected_keyword_argument", "extra_forbidden") for e in errors):
             message += f". Known keys: {', '.join(known_keys())}"
         raise ConfigError(message) from None
@@ -478,17 +682,24 @@ def load_config(
     source = "defaults"
     if file is not None:
         source = str(file)
+        name = _clean(source)
         try:
             with open(file, "rb") as fh:
                 data = tomllib.load(fh)
         except FileNotFoundError:
             raise ConfigError(
-                f"config file {file} does not exist (write one with `armvision config > {file}`)"
+                f"config file {name} does not exist (write one with `armvision config > {name}`)"
+            ) from None
+        except UnicodeDecodeError as exc:
+            raise ConfigError(
+                f"{name} is not valid UTF-8 (byte {exc.start}): TOML files are UTF-8, save it so"
             ) from None
         except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{file} is not valid TOML: {exc}") from None
+            raise ConfigError(f"{name} is not valid TOML: {_clean(str(exc))}") from None
+        except (ValueError, RecursionError) as exc:  # an int too long to convert, deep nesting
+            raise ConfigError(f"{name} is not usable TOML: {_clean(str(exc), 200)}") from None
         except OSError as exc:
-            raise ConfigError(f"cannot read config file {file}: {exc.strerror}") from None
+            raise ConfigError(f"cannot read config file {name}: {exc.strerror}") from None
     for assignment in overrides:
         apply_override(data, assignment)
     if overrides:

@@ -5,11 +5,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import re
 
 import numpy as np
 import pytest
 
 from armvision.calibration.procedure import calibrate_sim, solve_all
+from armvision.calibration.quality import assess, check_quality
 from armvision.calibration.sampling import PlannedPose, Sampler, circular_mean, phase1_plan
 from armvision.config import CalibrationConfig, Config, SimConfig, TagConfig
 from armvision.errors import CalibrationError
@@ -144,3 +146,84 @@ def test_facing_pose_puts_the_tag_centre_in_place_facing_the_camera():
         # The tag's z points into the tag, away from the camera that looks at its face.
         away = (p_tag - p_cam) / np.linalg.norm(p_tag - p_cam)
         np.testing.assert_allclose(T_base_tag[:3, 2], away, atol=1e-12)
+
+
+# ---------------------------------------------------------------- plausibility (quality.py)
+
+
+def resolved(result, samples, tag=None):
+    """``result`` solved again on ``samples`` (told about ``tag``, default its own)."""
+    tag = tag or result.tag
+    cal = CONFIG.calibration
+    fits = solve_all(samples, tag.offset_ee, cal.outlier_mm / 1000, cal.min_samples)
+    assert not isinstance(fits[result.method], str), fits[result.method]
+    sampling = dataclasses.replace(result.sampling, samples=samples)
+    return dataclasses.replace(
+        result, fit=fits[result.method], fits=fits, sampling=sampling, tag=tag
+    )
+
+
+def test_a_normal_simulated_calibration_is_plausible_with_margin(result):
+    quality = check_quality(result, CONFIG.calibration, "rerun")
+    assert quality.ok and quality.problems == ()
+    assert quality.residual_rms_mm < 0.3 * CONFIG.calibration.max_residual_rms_mm
+    assert quality.sample_spread_m > 2 * CONFIG.calibration.min_sample_spread_m
+    assert quality.tag_offset_error_mm < 0.1 * CONFIG.calibration.max_tag_offset_error_mm
+
+
+def test_a_wrong_tag_size_is_refused_for_its_residual(result):
+    """The real samples as a tag.size 25 % too large would have measured them: every detected
+    distance 25 % longer, which no rigid transform explains."""
+    scaled = tuple(
+        dataclasses.replace(s, T_cam_tag=make_T(s.T_cam_tag[:3, :3], 1.25 * s.T_cam_tag[:3, 3]))
+        for s in result.samples
+    )
+    wrong = resolved(result, scaled)
+    with pytest.raises(CalibrationError) as info:
+        check_quality(wrong, CONFIG.calibration, "rerun, or pass --force to keep it")
+    message = str(info.value)
+    assert re.match(
+        r"calibration refused: residual \d+\.\d mm RMS exceeds calibration\.max_residual_rms_mm"
+        r" = 5 \(is the tag loose, or tag\.size wrong\?\).*; rerun, or pass --force to keep it$",
+        message,
+    ), message
+    assert "\n" not in message
+    quality = check_quality(wrong, CONFIG.calibration, "rerun", force=True)
+    assert quality.residual_rms_mm > 10 and not quality.ok
+
+
+def test_a_tag_mount_far_from_the_configured_offset_is_refused(result):
+    """Told the tag is 4 cm from where it is mounted: the fit finds the real mount (small
+    residual), the offset check sees the disagreement."""
+    told = np.asarray(CONFIG.tag.offset_ee) + np.array([0.03, 0.0, 0.03])
+    wrong = resolved(result, result.samples, TagConfig(offset_ee=tuple(told)))
+    quality = assess(wrong, CONFIG.calibration)
+    assert quality.residual_rms_mm < 2.0
+    assert quality.tag_offset_error_mm == pytest.approx(42.4, abs=3)
+    (problem,) = quality.problems
+    assert "from tag.offset_ee, more than calibration.max_tag_offset_error_mm = 25" in problem
+
+
+def test_samples_bunched_in_one_place_are_refused_for_their_spread(result):
+    """Exact samples around one real pose (joints within 0.03 rad): a tiny residual, but
+    nothing to fix the rotation by."""
+    from armvision.perception.tags import tag_mount
+    from armvision.robot.kinematics import fk
+
+    rng = np.random.default_rng(0)
+    base = result.samples[0]
+    T_cam_base = np.linalg.inv(result.T_base_cam)
+    bunched = []
+    for _ in range(10):
+        q = base.joint_positions + rng.uniform(-0.03, 0.03, 6)
+        T_ct = T_cam_base @ fk(q) @ tag_mount(CONFIG.tag.offset_ee)
+        bunched.append(
+            dataclasses.replace(base, joint_positions=q, T_base_ee=fk(q), T_cam_tag=T_ct)
+        )
+    quality = assess(resolved(result, tuple(bunched)), CONFIG.calibration)
+    assert quality.sample_spread_m < 0.03
+    assert any(
+        p.startswith("the tag positions spread only")
+        and "calibration.min_sample_spread_m = 0.08" in p
+        for p in quality.problems
+    ), quality.problems
