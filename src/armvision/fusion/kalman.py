@@ -888,7 +888,7 @@ class EEFilter:
         while len(history) > 2 and history[0][0] < horizon:
             history.pop(0)
 
-    def _joints_at(self, t: float) -> Array | None:
+    def joints_at(self, t: float) -> Array | None:
         """Joint readings interpolated (or extrapolated 1 period at most) to time ``t``."""
         history = self._joint_history
         if not history:
@@ -908,7 +908,7 @@ class EEFilter:
         self, t: float, T_cam_tag: Array, rot_sigma: float
     ) -> Measurement | None:
         """The tag's orientation, camera vs encoders: -R dtheta - Jw b (joint biases only)."""
-        q = self._joints_at(t)
+        q = self.joints_at(t)
         if q is None:
             return None
         T_base_ee_enc, _, Jw = point_jacobian(q, self.model)

@@ -12,7 +12,9 @@ it
    replays them, see :class:`~armvision.fusion.kalman.EEFilter`); object detections are
    mapped into the base frame with the newest camera pose, the calibration as refined by the
    end-effector filter (``fusion.estimate_camera_pose``);
-4. publishes an immutable :class:`FusionSnapshot` (:meth:`~FusionLoop.snapshot`).
+4. compares each gripper-tag sighting with the encoders of its capture time
+   (:class:`~armvision.fusion.drift.DriftMonitor`: has the camera moved since calibration?);
+5. publishes an immutable :class:`FusionSnapshot` (:meth:`~FusionLoop.snapshot`).
 
 :meth:`~FusionLoop.start` runs the cycle on a thread at ``config.fusion.rate_hz``;
 :meth:`~FusionLoop.stop` ends it. A failure in the thread stops the loop and is reported in
@@ -36,8 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from armvision.config import Config, FusionConfig
+from armvision.config import CalibrationConfig, Config, FusionConfig
 from armvision.fusion import FusionError
+from armvision.fusion.drift import DriftMonitor, DriftStatus
 from armvision.fusion.kalman import (
     DEFAULT_FOCAL_PX,
     EEEstimate,
@@ -52,8 +55,12 @@ from armvision.fusion.tracker import (
     TrackState,
     measurement_from_detection,
 )
+from armvision.robot.kinematics import fk
 
 log = logging.getLogger("armvision.fusion")
+
+#: The end effector's speed at a tag sighting is taken over this interval, seconds.
+DRIFT_SPEED_DT_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -66,7 +73,8 @@ class FusionSnapshot:
     tracks, predicted to ``time``, by id; ``joint_positions``: the encoder reading of this
     cycle; ``cycles``: cycles run; ``overruns``: cycles that started late by more than a
     period; ``error``: why the thread stopped, if it failed; ``ee_stats``: the filter's
-    counters (updates, gated, replayed, dropped).
+    counters (updates, gated, replayed, dropped); ``drift``: the camera against the encoders
+    (has the camera moved since calibration?).
     """
 
     time: float
@@ -79,6 +87,7 @@ class FusionSnapshot:
     running: bool
     error: str | None
     ee_stats: FilterStats
+    drift: DriftStatus = dataclasses.field(default_factory=DriftStatus)
 
 
 class FusionLoop:
@@ -86,7 +95,8 @@ class FusionLoop:
 
     ``arm``: anything with ``get_joint_positions()`` (the Arm interface). ``T_base_cam``: the
     camera calibration; ``T_ee_tag``: the gripper tag's mount. ``clock``: seconds on the time
-    base of every pushed timestamp. ``focal_px``: the colour camera's focal length.
+    base of every pushed timestamp. ``focal_px``: the colour camera's focal length. The drift
+    thresholds come from ``config.calibration`` when ``config`` is the whole tree.
     """
 
     def __init__(
@@ -97,6 +107,7 @@ class FusionLoop:
         T_ee_tag: ArrayLike,
         clock: Callable[[], float] = time.monotonic,
         focal_px: float = DEFAULT_FOCAL_PX,
+        drift: DriftMonitor | None = None,
     ) -> None:
         self.config = config.fusion if isinstance(config, Config) else config
         if not callable(getattr(arm, "get_joint_positions", None)):
@@ -107,6 +118,10 @@ class FusionLoop:
         self.T_base_cam = as_array("T_base_cam", T_base_cam, (4, 4)).copy()
         self.ee_filter = EEFilter(self.config, self.T_base_cam, T_ee_tag, focal_px=focal_px)
         self.tracker = MultiObjectTracker(self.config)
+        if drift is None:
+            cal = config.calibration if isinstance(config, Config) else CalibrationConfig()
+            drift = DriftMonitor(cal, self.T_base_cam, T_ee_tag)
+        self.drift = drift
         self._lock = threading.Lock()  # guards the pending queues and the snapshot
         self._pending_tags: list[tuple[float, np.ndarray]] = []
         self._pending_objects: list[tuple[float, list, bool]] = []
@@ -164,6 +179,7 @@ class FusionLoop:
         self.ee_filter.update_encoders(t, q)
         for t_tag, T_cam_tag in sorted(tags, key=lambda item: item[0]):
             self.ee_filter.update_camera(t_tag, T_cam_tag)
+            self._check_drift(t_tag, T_cam_tag)
         if objects:
             T_base_cam = self.ee_filter.T_base_cam_refined()
             for t_frame, items, in_base in sorted(objects, key=lambda item: item[0]):
@@ -181,6 +197,20 @@ class FusionLoop:
         with self._lock:
             self._snapshot = snapshot
         return snapshot
+
+    def _check_drift(self, t: float, T_cam_tag: np.ndarray) -> None:
+        """Compare a tag sighting with the encoders of its capture time; the end effector's
+        speed then comes from the readings 50 ms apart (the filter's own velocity is what a
+        moved camera upsets)."""
+        q = self.ee_filter.joints_at(t)
+        q_before = self.ee_filter.joints_at(t - DRIFT_SPEED_DT_S)
+        if q is None:
+            return
+        speed = math.inf
+        if q_before is not None:
+            p, p_before = fk(q)[:3, 3], fk(q_before)[:3, 3]
+            speed = float(np.linalg.norm(p - p_before)) / DRIFT_SPEED_DT_S
+        self.drift.observe(t, q, T_cam_tag, speed)
 
     def _make_snapshot(self, t: float | None, q: np.ndarray | None) -> FusionSnapshot:
         ee = self.ee_filter.estimate(t) if self.ee_filter.time is not None else None
@@ -212,6 +242,7 @@ class FusionLoop:
                 stats.late_replayed,
                 stats.late_dropped,
             ),
+            drift=self.drift.status,
         )
 
     def snapshot(self) -> FusionSnapshot:

@@ -15,31 +15,61 @@ import numpy as np
 from armvision.calibration.store import StoredCalibration, load
 from armvision.config import Config
 from armvision.errors import CalibrationError
+from armvision.fusion.drift import rotation_reference
+from armvision.perception.tags import tag_mount
 from armvision.runtime.state import CalibrationStatus
 from armvision.runtime.system import System
+
+
+def _drift_references(
+    T_base_cam: np.ndarray, offset_ee, joint_offsets, samples
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(tag mount offset, rotation reference) for the drift monitor from a calibration's
+    estimated tag offset and samples, with the joint readings corrected as the runtime does."""
+    offset = None
+    if offset_ee is not None:
+        offset = np.asarray(offset_ee, dtype=float)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            offset = None
+    if offset is None or not samples:
+        return offset, None
+    q_offsets = np.zeros(6) if joint_offsets is None else np.asarray(joint_offsets, dtype=float)
+    pairs = [(np.asarray(s.joint_positions) - q_offsets, s.T_cam_tag) for s in samples]
+    return offset, rotation_reference(T_base_cam, tag_mount(offset), pairs)
 
 
 def calibration_status(stored: StoredCalibration) -> CalibrationStatus:
     """What the runtime needs from a saved calibration."""
     offsets = None if stored.joint_offsets is None else np.asarray(stored.joint_offsets)
+    T_base_cam = np.asarray(stored.T_base_cam, dtype=float)
+    tag_offset, reference = _drift_references(
+        T_base_cam, stored.tag.get("offset_ee_estimated"), offsets, stored.samples
+    )
     return CalibrationStatus(
         source=str(stored.path) if stored.path is not None else stored.source,
         method=stored.method,
         residual_mm=float(stored.residual_rms_mm),
-        T_base_cam=np.asarray(stored.T_base_cam, dtype=float),
+        T_base_cam=T_base_cam,
         joint_offsets_rad=offsets,
+        tag_offset_ee=tag_offset,
+        tag_rotation_reference=reference,
     )
 
 
 def result_status(result) -> CalibrationStatus:
     """The runtime's view of a fresh :class:`~armvision.calibration.procedure.CalibrationResult`."""
     fit = result.fit
+    T_base_cam = np.asarray(fit.T_base_cam, dtype=float)
+    offsets = None if fit.joint_offsets is None else np.asarray(fit.joint_offsets)
+    tag_offset, reference = _drift_references(T_base_cam, fit.offset_ee, offsets, result.samples)
     return CalibrationStatus(
         source=f"calibrated now ({len(result.samples)} samples)",
         method=result.method,
         residual_mm=1000.0 * float(fit.rms_m),
-        T_base_cam=np.asarray(fit.T_base_cam, dtype=float),
-        joint_offsets_rad=None if fit.joint_offsets is None else np.asarray(fit.joint_offsets),
+        T_base_cam=T_base_cam,
+        joint_offsets_rad=offsets,
+        tag_offset_ee=tag_offset,
+        tag_rotation_reference=reference,
     )
 
 

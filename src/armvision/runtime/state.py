@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from armvision.camera.frames import RGBDFrame
+from armvision.fusion.drift import DriftStatus
 from armvision.fusion.loop import FusionSnapshot
 from armvision.fusion.tracker import TrackState
 from armvision.perception.liquid import LiquidLevel
@@ -236,7 +237,10 @@ class CalibrationStatus:
     """Which calibration the system runs with: where from, how good.
 
     ``calibrated`` False: no calibration yet; ``T_base_cam`` is then only the nominal camera
-    placement, good for looking, not for moving to what the camera sees.
+    placement, good for looking, not for moving to what the camera sees. ``tag_offset_ee``:
+    the gripper tag's mount as the calibration estimated it (None: as configured);
+    ``tag_rotation_reference``: the tag-orientation disagreement seen over the calibration's
+    samples (rotation vector, rad; see :func:`armvision.fusion.drift.rotation_reference`).
     """
 
     source: str
@@ -245,6 +249,8 @@ class CalibrationStatus:
     T_base_cam: np.ndarray
     joint_offsets_rad: np.ndarray | None = None
     calibrated: bool = True
+    tag_offset_ee: np.ndarray | None = None
+    tag_rotation_reference: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -286,6 +292,11 @@ class SystemState:
     task: TaskStatus
     calibration: CalibrationStatus
     finger_position: float | None
+
+    @property
+    def drift(self) -> DriftStatus:
+        """Has the camera moved since calibration (the gripper tag against the encoders)?"""
+        return self.fusion.drift
 
     @property
     def tracks(self) -> tuple[TrackState, ...]:

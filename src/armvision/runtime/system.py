@@ -47,6 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import Config
 from armvision.errors import ArmvisionError
+from armvision.fusion.drift import DriftMonitor
 from armvision.fusion.kalman import DEFAULT_FOCAL_PX
 from armvision.fusion.loop import FusionLoop
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel, LiquidLevelMeter
@@ -202,6 +203,16 @@ class TaskContext:
                 return False
             self.sleep(min(poll_s, remaining))
 
+    def require_aim(self) -> None:
+        """Refuse (TaskError) to aim at what the camera sees when that would miss: no
+        calibration yet, or the camera has moved since it was calibrated."""
+        state = self.state()
+        if not state.calibration.calibrated:
+            raise TaskError("not calibrated: calibrate first (Calibrate, or armvision calibrate)")
+        refusal = state.drift.refusal()
+        if refusal is not None:
+            raise TaskError(refusal)
+
     def progress(self, fraction: float, message: str) -> None:
         """Report how far the task is (0..1) and what it is doing."""
         self.check()
@@ -228,7 +239,7 @@ class TaskContext:
         self.check()
         ok = command()
         if self._stop.is_set():  # Stop arrived while the command was being issued
-            self.system.arm.halt()
+            self.system.halt_arm()
             raise TaskStopped("stopped")
         if ok:
             self.wait_motion()
@@ -340,6 +351,7 @@ class System:
         self._levels: dict[int, deque[tuple[float, LiquidLevel]]] = {}
         self._threads: dict[str, threading.Thread] = {}
         self.fusion_stalls = 0  # times the fusion thread fell more than FUSION_CATCH_UP_S behind
+        self.stuck: tuple[str, ...] = ()  # threads that did not end at close()
         self._stop = threading.Event()
         self._started = False
         self._closed = False
@@ -388,23 +400,44 @@ class System:
         return self
 
     def close(self) -> None:
-        """Stop any task (the arm halts where it is), end every thread, release what it owns."""
+        """Stop any task (the arm halts where it is), end every thread, release what it owns.
+
+        A thread that does not end within ``runtime.join_timeout_s`` (a camera read that hangs
+        in its driver) is not pulled from under: what the system owns (the simulation, the
+        arm) is released only once that thread has ended, by a closer thread that waits for it;
+        :attr:`stuck` names such threads.
+        """
         if self._closed:
             return
         self._closed = True
         self.stop_task()
         self._stop.set()
         self._jobs.put(None)
-        for name, thread in self._threads.items():
-            thread.join(timeout=self.config.runtime.join_timeout_s)
-            if thread.is_alive():
-                log.warning(
-                    "the %s thread did not stop within %.1f s",
-                    name,
-                    self.config.runtime.join_timeout_s,
-                )
+        timeout = self.config.runtime.join_timeout_s
+        for thread in self._threads.values():
+            thread.join(timeout=timeout)
+        self.stuck = tuple(name for name, t in self._threads.items() if t.is_alive())
         if self.lockstep:
             self.camera.stop()
+        if not self.stuck:
+            self._release()
+            return
+        log.error(
+            "the %s thread(s) did not stop within %.1f s (a hung camera or arm call?); what "
+            "they use is released once they end",
+            ", ".join(self.stuck),
+            timeout,
+        )
+        stuck = [self._threads[name] for name in self.stuck]
+
+        def release_later() -> None:
+            for thread in stuck:
+                thread.join()
+            self._release()
+
+        threading.Thread(target=release_later, name="armvision-closer", daemon=True).start()
+
+    def _release(self) -> None:
         for thing in self._owns:
             for method in ("close", "stop", "shutdown"):
                 if callable(getattr(thing, method, None)):
@@ -450,6 +483,14 @@ class System:
             focal_px = float(self.camera.intrinsics.fx)
         except ArmvisionError:  # a RealSense knows its intrinsics only once started
             focal_px = DEFAULT_FOCAL_PX
+        cal = self.calibration
+        drift = DriftMonitor(
+            self.config.calibration,
+            self.T_base_cam,
+            self.T_ee_tag if cal.tag_offset_ee is None else tag_mount(cal.tag_offset_ee),
+            cal.tag_rotation_reference,
+            active=cal.calibrated,  # the nominal placement of an uncalibrated camera is no claim
+        )
         return FusionLoop(
             self.config,
             self.encoders,
@@ -457,6 +498,7 @@ class System:
             self.T_ee_tag,
             clock=self.clock,
             focal_px=focal_px,
+            drift=drift,
         )
 
     def set_calibration(self, calibration: CalibrationStatus) -> None:
@@ -495,20 +537,24 @@ class System:
     # ---------------------------------------------------------------- the stages' work
 
     def _tags_once(self, frame: RGBDFrame) -> None:
-        tags = self.tag_detector.detect(frame)
+        found = self.tag_detector.detect(frame)
+        tags = [t for t in found if _finite(t.T_cam_tag, t.center)]
         for tag in tags:
             if tag.id == self.config.tag.id:
                 self.fusion.push_tag(frame.timestamp, tag.T_cam_tag)
         self.store.set(tags=tuple(tags), tags_time=frame.timestamp)
+        _reject_non_finite("tag detector", "tag", len(found) - len(tags))
 
     def _objects_once(self, frame: RGBDFrame) -> None:
         detector = self.object_detector
         if isinstance(detector, GeometricDetector):
-            detections = detector.detect(frame, self.encoders.get_joint_positions())
+            found = detector.detect(frame, self.encoders.get_joint_positions())
         else:
-            detections = detector.detect(frame)
+            found = detector.detect(frame)
+        detections = [d for d in found if _finite(d.center_cam, d.box, d.radius, d.height, d.score)]
         self.fusion.push_detections(frame.timestamp, detections)
         self.store.set(detections=tuple(detections), detections_frame=frame)
+        _reject_non_finite("object detector", "detection", len(found) - len(detections))
 
     def _liquid_once(self) -> bool:
         """Measure every bottle of the newest object detections; False if nothing to do."""
@@ -622,7 +668,25 @@ class System:
             job = self._jobs.get()
             if job is None:
                 break
-            self._run_job(job)
+            try:
+                self._run_job(job)
+            except Exception as exc:  # the worker outlives any task: the next one must run
+                log.exception("the motion worker failed on task %s", job.name)
+                with self._job_lock:
+                    self._current = None
+                message = f"internal error ({type(exc).__name__}: {exc})"
+                self.meters["motion"].error(message)
+                if not job.done.is_set():
+                    self._finish(
+                        job,
+                        TaskStatus(
+                            name=job.name,
+                            phase="failed",
+                            error=message,
+                            task_id=job.task_id,
+                            finished=self.clock(),
+                        ),
+                    )
 
     # ---------------------------------------------------------------- lockstep
 
@@ -728,10 +792,22 @@ class System:
             job.stop.set()
         if current is not None:
             current.stop.set()
+        self.halt_arm()
+
+    def halt_arm(self) -> str | None:
+        """Halt the arm where it is; None, or why that failed (logged, and kept as the motion
+        stage's error). Never raises: Stop must end the task whatever the arm does."""
         try:
             self.arm.halt()
-        except Exception:
-            log.exception("halting the arm failed")
+            return None
+        except Exception as exc:
+            message = (
+                f"halting the arm failed ({type(exc).__name__}: {exc}): check the arm "
+                "(power, cable, driver) and use its emergency stop if it still moves"
+            )
+            log.error("%s", message)
+            self.meters["motion"].error(message)
+            return message
 
     def _run_job(self, job: _Job) -> None:
         with self._job_lock:
@@ -754,6 +830,7 @@ class System:
         )
         ctx = TaskContext(self, job.task_id, job.stop)
         phase, error, result = "succeeded", None, None
+        halt_error = None
         try:
             value = job.fn(ctx, **job.kwargs)
             result = value.to_dict() if hasattr(value, "to_dict") else value
@@ -762,7 +839,9 @@ class System:
                 error = getattr(value, "reason", "") or "the task did not succeed"
         except TaskStopped:
             phase, error = "stopped", "stopped by the operator"
-            self.arm.halt()
+            halt_error = self.halt_arm()
+            if halt_error is not None:
+                error += f"; {halt_error}"
         except ArmvisionError as exc:
             phase, error = "failed", str(exc)
             log.warning("task %s failed: %s", job.name, exc)
@@ -786,8 +865,28 @@ class System:
         )
         self._finish(job, status)
         self.meters["motion"].tick()
+        if halt_error is not None:  # kept in the motion stage's health until the next task
+            self.meters["motion"].error(halt_error)
 
     def _finish(self, job: _Job, status: TaskStatus) -> None:
         self.store.set_task(status)
         job.status = status
         job.done.set()
+
+
+def _finite(*values: Any) -> bool:
+    """Every number in ``values`` (scalars, sequences, arrays) is finite."""
+    try:
+        return all(bool(np.all(np.isfinite(np.asarray(v, dtype=float)))) for v in values)
+    except (TypeError, ValueError):
+        return False
+
+
+def _reject_non_finite(stage: str, what: str, dropped: int) -> None:
+    """A stage's results with NaN or inf are its own fault: dropped before fusion sees them
+    and reported as this stage's error (the good ones of the frame went on)."""
+    if dropped:
+        raise ArmvisionError(
+            f"the {stage} gave {dropped} {what}(s) with non-finite values; they were dropped"
+            " (a detector bug or a corrupt frame: see the log)"
+        )

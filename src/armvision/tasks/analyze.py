@@ -925,6 +925,7 @@ class _Held:
 def analyze(ctx: TaskContext, track_id: int | None = None) -> AnalyzeResult:
     """Measure a bottle's liquid, presenting it to the camera if the view is poor (see the
     module docstring); ``track_id`` picks the bottle, else the nearest the base."""
+    ctx.require_aim()
     job = _Analyze(ctx, track_id)
     try:
         return job.run()

@@ -621,6 +621,7 @@ def follow(
         raise TaskError(f"follow duration must be a positive number of seconds, not {duration_s}")
     if moving_time is not None and not (math.isfinite(moving_time) and moving_time > 0.0):
         raise TaskError(f"moving_time must be a positive number of seconds, not {moving_time}")
+    ctx.require_aim()
     source: _TagTarget | _TrackTarget
     if target == "tag":
         tag = config.tag_id if tag_id is None else int(tag_id)

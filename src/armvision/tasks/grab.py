@@ -369,6 +369,7 @@ class _Abort(Exception):  # noqa: N818 - control flow inside this module
 
 def grab(ctx: TaskContext, track_id: int | None = None) -> GrabResult:
     """Grasp a bottle and lift it (see the module docstring); ``track_id`` picks the bottle."""
+    ctx.require_aim()
     job = _Grab(ctx, ctx.config.grab, track_id)
     try:
         return job.run()
