@@ -365,6 +365,7 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
 
     from armvision.calibration import store
     from armvision.calibration.procedure import calibrate, calibrate_sim
+    from armvision.calibration.quality import check_quality
 
     if args.method:
         config = dataclasses.replace(
@@ -389,19 +390,23 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
         out = Path(args.out) if args.out else _sim_calibration_path(config.calibration.file)
         result = calibrate_sim(config, args.seed, progress=progress)
         stored = store.record(result, source=f"simulation, seed {args.seed}")
-    store.save(stored, out)
+    quality = check_quality(
+        result, config.calibration, "rerun, or pass --force to keep it", force=args.force
+    )
+    warnings = []
+    if quality.problems:
+        warnings.append(f"calibration kept with --force although {'; '.join(quality.problems)}")
+        print(f"armvision: warning: {warnings[-1]}", file=sys.stderr)
+    saved = store.save(stored, out)  # a backup that cannot be made is logged as a warning
+    if saved.backup_error:
+        warnings.append(saved.backup_error)
     if args.json:
-        print(json.dumps({**stored.to_dict(), "path": str(out)}, indent=2))
+        extra = {"path": str(out), "backup": saved.backup and str(saved.backup)}
+        print(json.dumps({**stored.to_dict(), **extra, "warnings": warnings}, indent=2))
     else:
         _print_calibration(result)
-        print(
-            f"saved {out}"
-            + (
-                f" (previous kept as {store.backup_path(out)})"
-                if store.backup_path(out).exists()
-                else ""
-            )
-        )
+        kept = f" (previous kept as {saved.backup})" if saved.backup else ""
+        print(f"saved {out}{kept}" + (f", but {saved.backup_error}" if saved.backup_error else ""))
     return 0
 
 
@@ -564,6 +569,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--method", choices=CALIBRATION_METHODS, help="solver, overriding calibration.method"
     )
     calibrate.add_argument("--json", action="store_true", help="print the saved JSON")
+    calibrate.add_argument(
+        "--force",
+        action="store_true",
+        help="keep a calibration that fails the plausibility check (residual, spread, tag mount)",
+    )
     calibrate.set_defaults(func=cmd_calibrate)
 
     evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")

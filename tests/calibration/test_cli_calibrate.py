@@ -62,3 +62,27 @@ def test_eval_calibration_prints_one_json_object(capsys):
     assert {"svd", "robust_svd", "joint", "tsai", "park", "horaud", "andreff"} < set(METHODS)
     assert {"daniilidis", "shah", "li"} < set(METHODS)
     assert result["runs"][0]["placement"]["distance_m"] >= 0.8
+
+
+def test_an_implausible_calibration_is_refused_unless_forced(tmp_path, capsys):
+    """Before: any solve was saved without a word. A limit below the simulation's ~0.5 mm
+    residual makes the (real) run implausible: refused, nothing written; with --force saved,
+    with a warning, also when the previous calibration cannot be kept as the backup."""
+    path = tmp_path / "cal.json"
+    strict = [*FAST, "--set", "calibration.max_residual_rms_mm=0.05"]
+    assert main([*strict, "calibrate", "--sim", "--seed", "1", "--out", str(path)]) == 2
+    (err,) = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert err.startswith("armvision: error: calibration refused: residual ")
+    assert "exceeds calibration.max_residual_rms_mm = 0.05 (is the tag loose, or tag.size" in err
+    assert err.endswith("rerun, or pass --force to keep it")
+    assert not path.exists()
+
+    path.write_text("{}")  # a previous file, whose backup cannot be written: a directory
+    store.backup_path(path).mkdir()
+    (store.backup_path(path) / "x").write_text("x")
+    args = [*strict, "calibrate", "--sim", "--seed", "1", "--out", str(path), "--force"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "warning: calibration kept with --force although residual" in captured.err
+    assert f"saved {path}, but the previous calibration could not be kept as" in captured.out
+    assert store.load(path).residual_rms_mm > 0.05

@@ -103,3 +103,70 @@ def test_tracks_follow_a_recalibration() -> None:
         assert bottle_error() > 0.02
         system.set_calibration(CalibrationStatus("truth", "none", None, T_true))
         assert bottle_error() < 0.01
+
+
+def fast_calibration_config(**calibration) -> Config:
+    """No detection stages (the task reads frames itself), fewer poses: a quick Calibrate."""
+    base = Config()
+    return dataclasses.replace(
+        base,
+        runtime=dataclasses.replace(
+            base.runtime, tag_detection=False, object_detection=False, liquid_detection=False
+        ),
+        calibration=dataclasses.replace(base.calibration, extra_poses=0, **calibration),
+    )
+
+
+def test_an_implausible_calibration_is_refused_and_the_previous_one_kept(tmp_path) -> None:
+    """Before: any solve was applied and saved. Here the limit is below the simulation's
+    ~0.5 mm residual, so the same (real) run is refused with the check's reason."""
+    config = fast_calibration_config(max_residual_rms_mm=0.05)
+    scene = SceneSpec(random_camera_pose(config.sim, None))
+    T_wrong, _ = perturbed_calibration(scene.T_base_cam, 0, 0.03, 2.0)
+    wrong = CalibrationStatus("a wrong one", "none", None, T_wrong)
+    path = tmp_path / "calibration.json"
+    with sim_system(config, 2, scene=scene, calibration=wrong) as system:
+        status = system.run_task("calibrate", calibrate, save_path=path)
+        assert status.phase == "failed"
+        assert status.error.startswith("calibration refused: residual ")
+        assert "exceeds calibration.max_residual_rms_mm = 0.05" in status.error
+        assert "keeps its previous calibration" in status.error
+        assert system.calibration is wrong
+        assert np.array_equal(system.fusion.T_base_cam, T_wrong)
+        assert np.allclose(system.world.joint_positions(), VX300S.home, atol=0.01)
+    assert not path.exists()
+
+
+def test_a_good_calibration_is_used_even_when_it_cannot_be_saved(tmp_path) -> None:
+    """Before: a failing save (here: the path lies under a regular file) failed the task, and
+    the good result was thrown away; likewise a .bak that could not be written."""
+    config = fast_calibration_config()
+    scene = SceneSpec(random_camera_pose(config.sim, None))
+    T_true = scene.T_base_cam
+    T_wrong, _ = perturbed_calibration(T_true, 0, 0.03, 2.0)
+    wrong = CalibrationStatus("a wrong one", "none", None, T_wrong)
+    (tmp_path / "not-a-directory").write_text("x")
+    unwritable = tmp_path / "not-a-directory" / "calibration.json"
+    with sim_system(config, 2, scene=scene, calibration=wrong) as system:
+        status = system.run_task("calibrate", calibrate, save_path=unwritable)
+        assert status.phase == "succeeded", status.error
+        dp, _ = pose_error(system.calibration.T_base_cam, T_true)
+        assert dp < 0.006 and np.array_equal(
+            system.fusion.T_base_cam, system.calibration.T_base_cam
+        )
+        assert status.result["saved"] is None
+        assert "cannot write the calibration" in status.result["save_error"]
+        assert "in use, but not saved: cannot write the calibration" in status.message
+        assert "not saved" in system.calibration.source
+
+        # A previous calibration whose backup cannot be written (a directory is in the way).
+        path = tmp_path / "calibration.json"
+        path.write_text("{}")
+        (tmp_path / "calibration.json.bak").mkdir()
+        (tmp_path / "calibration.json.bak" / "x").write_text("x")
+        status = system.run_task("calibrate", calibrate, save_path=path)
+        assert status.phase == "succeeded", status.error
+        assert status.result["saved"] == str(path) and status.result["save_error"] is None
+        (warning,) = status.result["warnings"]
+        assert "could not be kept as" in warning and warning in status.message
+    assert np.allclose(load_calibration(path).T_base_cam, system.calibration.T_base_cam)
