@@ -5,6 +5,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from armvision.calibration.procedure import CalibrationResult, solve_all
+from armvision.calibration.sampling import Sample, SamplingResult
+from armvision.camera.frames import Intrinsics
+from armvision.config import TagConfig
 from armvision.geometry import inv_T, make_T
 from armvision.perception.tags import tag_mount
 from armvision.robot.kinematics import fk
@@ -29,3 +33,22 @@ def samples(n=20, seed=0, offset=OFFSET, T_base_cam=T_BASE_CAM):
     """Noise-free samples at random in-limit joint positions: ``(T_base_ee, T_cam_tag)``."""
     _, T_be, T_ct = joint_samples(n, seed, offset, T_base_cam)
     return T_be, T_ct
+
+
+def make_result(T_base_cam=T_BASE_CAM, seed=0) -> CalibrationResult:
+    T_be, T_ct = samples(n=10, seed=seed, T_base_cam=T_base_cam)
+    sample_list = tuple(
+        Sample(2, 0.1 * i, 0.2, np.zeros(6), T_be[i], T_ct[i], 5, 5, 0.0003, 80.0)
+        for i in range(len(T_be))
+    )
+    fits = solve_all(sample_list, OFFSET, 0.005, 6)
+    sampling = SamplingResult(sample_list, 0.0, np.array([1.0, 0.0, 0.45]), ("a skipped pose",))
+    return CalibrationResult(
+        "joint",
+        fits["joint"],
+        fits,
+        sampling,
+        TagConfig(),
+        Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5),
+        "123456789012",
+    )

@@ -12,33 +12,11 @@ import stat
 
 import numpy as np
 import pytest
-from tests.calibration.helpers import OFFSET, T_BASE_CAM, samples
+from tests.calibration.helpers import OFFSET, T_BASE_CAM, make_result
 
 from armvision.calibration import store
-from armvision.calibration.procedure import CalibrationResult, solve_all
-from armvision.calibration.sampling import Sample, SamplingResult
-from armvision.camera.frames import Intrinsics
 from armvision.config import TagConfig
 from armvision.errors import CalibrationError
-
-
-def make_result(T_base_cam=T_BASE_CAM, seed=0) -> CalibrationResult:
-    T_be, T_ct = samples(n=10, seed=seed, T_base_cam=T_base_cam)
-    sample_list = tuple(
-        Sample(2, 0.1 * i, 0.2, np.zeros(6), T_be[i], T_ct[i], 5, 5, 0.0003, 80.0)
-        for i in range(len(T_be))
-    )
-    fits = solve_all(sample_list, OFFSET, 0.005, 6)
-    sampling = SamplingResult(sample_list, 0.0, np.array([1.0, 0.0, 0.45]), ("a skipped pose",))
-    return CalibrationResult(
-        "joint",
-        fits["joint"],
-        fits,
-        sampling,
-        TagConfig(),
-        Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5),
-        "123456789012",
-    )
 
 
 def test_round_trip_keeps_everything(tmp_path):
