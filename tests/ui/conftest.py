@@ -3,6 +3,7 @@ served by uvicorn in a thread."""
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -70,3 +71,36 @@ def running_ui(seed: int = 3) -> Iterator[RunningUI]:
             yield ui
     finally:
         system.close()
+
+
+class LogRecords(logging.Handler):
+    """Every record logged while it is installed (:func:`captured_logs`)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+    def tracebacks(self) -> list[logging.LogRecord]:
+        return [r for r in self.records if r.exc_info or "Traceback" in r.getMessage()]
+
+    def lines(self) -> int:
+        """How many lines these records make in a log (a traceback is many)."""
+        formatter = logging.Formatter()
+        return sum(formatter.format(r).count("\n") + 1 for r in self.records)
+
+
+@contextmanager
+def captured_logs() -> Iterator[LogRecords]:
+    """The records of armvision's loggers and uvicorn's (which do not reach the root logger)."""
+    handler = LogRecords()
+    loggers = [logging.getLogger(), logging.getLogger("uvicorn")]
+    for logger in loggers:
+        logger.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        for logger in loggers:
+            logger.removeHandler(handler)

@@ -7,6 +7,7 @@ the same code `armvision ui` runs, in a thread, on a free port.
 from __future__ import annotations
 
 import json
+import socket
 import time
 from collections.abc import Iterator
 
@@ -22,7 +23,7 @@ from armvision.runtime.build import sim_system, uncalibrated
 from armvision.sim.world import bench_scene
 from armvision.ui.server import ACTIONS, TOKEN_ENV, action_states, resolve_token
 
-from .conftest import RunningUI, running_ui, serve
+from .conftest import RunningUI, captured_logs, running_ui, serve
 
 
 @pytest.fixture(scope="module")
@@ -200,7 +201,12 @@ def test_bad_requests_get_readable_errors(ui: RunningUI, client: httpx.Client) -
     assert "duration_s" in _error(
         client.post(f"{u}/api/actions/follow_tag", json={"duration_s": -3}), 400
     )
-    assert "JSON" in _error(client.post(f"{u}/api/actions/home", content=b"{nope"), 400)
+    json_type = {"Content-Type": "application/json"}
+    not_json = client.post(f"{u}/api/actions/home", content=b"{nope", headers=json_type)
+    assert "not valid JSON" in _error(not_json, 400)
+    assert "Content-Type: application/json" in _error(
+        client.post(f"{u}/api/actions/home", content=b"{}"), 415
+    )
     assert "no bottle track #999" in _error(
         client.post(f"{u}/api/actions/grab", json={"track_id": 999}), 400
     )
@@ -254,7 +260,7 @@ def test_follow_tag_runs_until_stopped(ui: RunningUI, client: httpx.Client) -> N
 def test_without_the_token_a_server_off_the_loopback_refuses_everything(
     ui: RunningUI, client: httpx.Client
 ) -> None:
-    token = "s3cret-t0ken"
+    token = "s3cret-t0ken-0f-sixteen"
     with serve(ui.system, ui.server.ui.config, host="0.0.0.0", token=token) as server:
         base = f"http://127.0.0.1:{server.port}"
         for method, path in (
@@ -285,6 +291,21 @@ def test_without_the_token_a_server_off_the_loopback_refuses_everything(
             assert browser.get(base + "/api/state").status_code == 200
         with connect(f"ws://127.0.0.1:{server.port}/ws/state?token={token}") as ws:
             assert json.loads(ws.recv(timeout=5))["mode"] == "sim"
+
+        # A script (the README's curl): the token and a JSON body; Stop needs no body.
+        script = {**bearer, "Content-Type": "application/json"}
+        home = client.post(f"{base}/api/actions/home", content=b"{}", headers=script)
+        assert home.status_code == 202, home.text
+        assert client.post(f"{base}/api/stop", headers=bearer).json() == {"stopped": True}
+        ui.wait_state(
+            client, lambda s: s["task"]["id"] == home.json()["task_id"] and not s["busy"], 5
+        )
+
+        # Off the loopback it answers to addresses and this machine's names, not other names.
+        for host in (f"127.0.0.1:{server.port}", f"10.1.2.3:{server.port}", socket.gethostname()):
+            assert client.get(base + "/api/state", headers={**bearer, "Host": host}).is_success
+        rebound = client.get(base + "/api/state", headers={**bearer, "Host": "evil.example"})
+        assert "ui.allowed_hosts" in _error(rebound, 403)
     # The loopback server of the fixture needs none.
     assert client.get(ui.url + "/api/state").status_code == 200
 
@@ -295,10 +316,11 @@ def test_token_rules(monkeypatch: pytest.MonkeyPatch) -> None:
     assert resolve_token("::1") is None
     made = resolve_token("0.0.0.0")
     assert made is not None and len(made) >= 20 and made != resolve_token("0.0.0.0")
-    assert resolve_token("192.168.1.20", "from-config") == "from-config"
-    assert resolve_token("127.0.0.1", "from-config") == "from-config"  # asked for: kept
-    monkeypatch.setenv(TOKEN_ENV, "from-env")
-    assert resolve_token("0.0.0.0", "from-config") == "from-env"
+    configured = "from-config-0123456789"
+    assert resolve_token("192.168.1.20", configured) == configured
+    assert resolve_token("127.0.0.1", configured) == configured  # asked for: kept
+    monkeypatch.setenv(TOKEN_ENV, "from-env-0123456789")
+    assert resolve_token("0.0.0.0", configured) == "from-env-0123456789"
 
 
 # --------------------------------------------------------------------------- not calibrated
@@ -329,3 +351,55 @@ def test_the_server_refuses_what_the_page_disables(ui: RunningUI, client: httpx.
         assert ui.state(client)["calibration"]["calibrated"] is False
     finally:
         ui.system.set_calibration(calibrated)
+
+
+# --------------------------------------------------------------------------- bad clients
+
+
+def test_a_socket_from_another_site_is_refused(ui: RunningUI) -> None:
+    ws_url = ui.url.replace("http://", "ws://") + "/ws/state"
+    for origin in ("http://evil.example", "http://127.0.0.1:1", "null"):
+        with pytest.raises(InvalidStatus) as refused:
+            connect(ws_url, origin=origin, open_timeout=5).close()
+        assert refused.value.response.status_code == 403
+    with connect(ws_url, origin=ui.url, open_timeout=5) as ws:  # the page's own
+        assert json.loads(ws.recv(timeout=5))["mode"] == "sim"
+
+
+def _half_sent_post(port: int, path: str) -> None:
+    """A POST whose client leaves after a few bytes of the body it announced."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        sock.sendall(
+            f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+            "Content-Type: application/json\r\nContent-Length: 1000\r\n\r\n{".encode()
+        )
+        time.sleep(0.02)  # the server is reading the body
+
+
+def test_clients_that_leave_mid_body_are_answered_quietly(
+    ui: RunningUI, client: httpx.Client
+) -> None:
+    """50 half-sent POSTs used to write 5,300 log lines (two tracebacks each)."""
+    port = ui.server.port
+    with captured_logs() as logs:
+        for i in range(50):
+            _half_sent_post(port, ("/api/actions/home", "/api/detectors/tags")[i % 2])
+        time.sleep(0.5)  # the server notices the last ones leaving
+        assert client.get(ui.url + "/api/state").status_code == 200  # and serves on
+    assert not logs.tracebacks(), [r.getMessage() for r in logs.tracebacks()][:3]
+    assert logs.lines() <= 50, [r.getMessage() for r in logs.records][:5]
+    assert ui.state(client)["task"]["phase"] != "running" and ui.system.enabled["tags"]
+
+
+def test_a_bug_is_one_traceback_in_the_log_and_one_line_to_the_client(
+    ui: RunningUI, client: httpx.Client, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(fresh: bool = False) -> str:
+        raise ZeroDivisionError("a bug\nover two lines")
+
+    monkeypatch.setattr(ui.server.ui, "payload", broken)
+    with captured_logs() as logs:
+        r = client.get(ui.url + "/api/state")
+        time.sleep(0.3)  # what the server logs after answering
+    assert len(logs.tracebacks()) == 1, [r.getMessage() for r in logs.records]
+    assert _error(r, 500) == "internal error (ZeroDivisionError); see the server log"

@@ -10,15 +10,17 @@ from __future__ import annotations
 
 import os
 import shutil
+import threading
 import time
 from collections.abc import Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
-from .conftest import RunningUI, running_ui
+from .conftest import RunningUI, captured_logs, running_ui
 
 CHROMIUM_ENV = "ARMVISION_CHROMIUM"
 # As the machine's notes prescribe for a closed network: no first-run, sync or background
@@ -47,6 +49,37 @@ FRAME_CHECKSUM_JS = """() => {
   for (let i = 0; i < d.length; i += 1) s = (s * 31 + d[i]) % 2147483647;
   return s;
 }"""
+
+
+# A page of another site (another port of this machine) that tries to drive the arm through
+# the UI: a plain HTML form (no script needed), a no-cors fetch (what a script may send anywhere
+# without asking), a JSON fetch (the browser asks first and the UI does not say yes), a frame.
+FOREIGN_PAGE = """<!doctype html>
+<html><head><title>another site</title></head><body>
+<form id="form" method="POST" enctype="text/plain" action="{ui}/api/actions/home"></form>
+<iframe id="frame" src="{ui}/" width="400" height="300"></iframe>
+<script>
+async function noCorsFetch() {{
+  try {{
+    const r = await fetch('{ui}/api/actions/home', {{method: 'POST', mode: 'no-cors',
+      headers: {{'Content-Type': 'text/plain'}}, body: '{{}}'}});
+    return r.type;  // 'opaque': sent, its answer unreadable
+  }} catch (err) {{
+    return 'sent, answer blocked';  // the UI's Cross-Origin-Resource-Policy
+  }}
+}}
+async function jsonFetch() {{
+  try {{
+    await fetch('{ui}/api/actions/home', {{method: 'POST',
+      headers: {{'Content-Type': 'application/json'}}, body: '{{}}'}});
+    return 'answered';
+  }} catch (err) {{
+    return 'refused';
+  }}
+}}
+</script>
+</body></html>
+"""
 
 
 def chromium_path() -> str:
@@ -93,6 +126,32 @@ def page(browser: Browser, ui: RunningUI) -> Iterator[Page]:
     yield page
     assert page.js_errors == []  # type: ignore[attr-defined]
     page.close()
+
+
+@pytest.fixture(scope="module")
+def foreign_site(ui: RunningUI) -> Iterator[str]:
+    """FOREIGN_PAGE served from another port of 127.0.0.1 (another origin)."""
+    body = FOREIGN_PAGE.format(ui=ui.url).encode()
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:  # quiet
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_port}/"
+    finally:
+        server.shutdown()
+        server.server_close()
 
 
 def _joints_deg(page: Page) -> np.ndarray:
@@ -171,6 +230,43 @@ def test_stop_during_a_follow(page: Page, ui: RunningUI) -> None:
     time.sleep(0.5)
     assert np.max(np.abs(world.joint_positions() - q)) < 0.02  # the arm holds still
     expect(page.locator("#btn-grab")).to_be_enabled(timeout=3_000)
+
+
+def test_another_site_cannot_drive_the_arm(
+    browser: Browser, page: Page, ui: RunningUI, foreign_site: str
+) -> None:
+    world = ui.system.world
+
+    def unchanged(task_id: int | None, q: np.ndarray) -> None:
+        time.sleep(0.5)  # a task that had started would be moving by now
+        assert ui.system.snapshot().task.task_id == task_id  # no task started
+        assert np.max(np.abs(world.joint_positions() - q)) < 0.02  # the arm did not move
+
+    task_id, q = ui.system.snapshot().task.task_id, world.joint_positions()
+    other = browser.new_page()
+    with captured_logs() as logs:
+        other.goto(foreign_site)
+        with other.expect_navigation() as navigation:
+            other.evaluate("document.getElementById('form').submit()")
+        assert navigation.value is not None and navigation.value.status == 403
+        assert "another site" in other.inner_text("body")
+        unchanged(task_id, q)
+        other.goto(foreign_site)
+        assert other.evaluate("noCorsFetch()") in ("opaque", "sent, answer blocked")
+        assert other.evaluate("jsonFetch()") == "refused"  # by the browser: never sent
+        unchanged(task_id, q)
+        # The UI refuses to be framed: the frame shows the browser's error page instead.
+        frame = next(f for f in other.frames if f is not other.main_frame)
+        assert frame.url.startswith("chrome-error:"), frame.url
+        other.close()
+    refused = [r for r in logs.records if "from another site" in r.getMessage()]
+    assert len(refused) == 2, [r.getMessage() for r in logs.records]  # the form, the fetch
+    # The UI's own page, in the same browser, still drives the arm.
+    page.locator("#btn-home").click()
+    _wait(lambda: ui.system.snapshot().task.task_id != task_id, 5, "Home to start")
+    expect(page.locator("#task-name")).to_have_text("home", timeout=5_000)
+    expect(page.locator("#task-phase")).to_have_text("succeeded", timeout=20_000)
+    assert np.max(np.abs(np.degrees(world.joint_positions()))) < 1.0  # home, says the simulator
 
 
 def test_grab_bottle_succeeds(page: Page, ui: RunningUI, shots: Path) -> None:

@@ -7,29 +7,42 @@ One page (``static/``: plain HTML, JS and CSS, no build step) talks to these end
 - ``GET /api/state``: the same, once.
 - ``GET /stream.mjpg?view=color|depth``: MJPEG of the annotated colour image or of the
   colourised depth, at most ``ui.video_fps``; ``GET /api/frame.jpg?view=...``: one JPEG.
-- ``POST /api/actions/{name}`` (JSON body of the action's parameters): start a task in the
-  background, 202 with its id; 409 while another task runs (press Stop first).
-- ``POST /api/stop``: Stop, always accepted: the arm halts where it is, the task ends.
-- ``POST /api/detectors/{name}`` ``{"enabled": bool}``: switch tag, object or liquid detection.
+- ``POST /api/actions/{name}`` (JSON body of the action's parameters, ``Content-Type:
+  application/json``): start a task in the background, 202 with its id; 409 while another task
+  runs (press Stop first).
+- ``POST /api/stop``: Stop, always accepted whatever its body or content type: the arm halts
+  where it is, the task ends.
+- ``POST /api/detectors/{name}`` ``{"enabled": bool}`` (JSON): switch tag, object or liquid
+  detection.
 
-Every error is JSON ``{"error": "what went wrong and what to do"}``, never a traceback (that
-goes to the server's log).
+Every error is JSON ``{"error": "what went wrong and what to do"}`` of one line, never a
+traceback (that goes to the server's log, and only for a bug): 400 a bad body (strict: numbers
+are JSON numbers, ids JSON integers; a track id must be a tracked bottle, checked first), 413 a
+body over 64 KiB, 415 a body that is not ``application/json``. A client that leaves in the
+middle of its body is let go quietly.
 
-**Access.** On the loopback address anyone on the machine may connect. Bound to any other
-address, the app needs a token (:func:`resolve_token`) on every request and socket: the
-``token`` query parameter (the URL printed at start has it), ``Authorization: Bearer``, or the
-``armvision_token`` cookie the page gets when it is opened with the token (SameSite=Strict, so
-other sites cannot borrow it). Anything else gets 401 (a socket: closed with 1008).
+**Access** (:class:`Guard`). On the loopback address anyone on the machine may connect. Bound
+to any other address, the app needs a token (:func:`resolve_token`) on every request and
+socket: the ``token`` query parameter (the URL printed at start has it), ``Authorization:
+Bearer``, or the ``armvision_token`` cookie the page gets when it is opened with the token
+(SameSite=Strict, so other sites cannot borrow it). Anything else gets 401 (a socket: closed
+with 1008). Whatever the address, other web sites get nothing: the Host header must be one
+of the server's own names (else 403: a DNS-rebinding page names its own host), a POST or a
+socket that carries an Origin must carry the server's own (else 403; scripts send none), a
+state-changing body must be JSON (an HTML form cannot send that), and no answer may be framed
+(``X-Frame-Options``, ``Content-Security-Policy``).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import json
 import logging
 import math
 import os
+import reprlib
 import secrets
 import socket
 import threading
@@ -44,12 +57,14 @@ from urllib.parse import parse_qs
 import cv2
 import numpy as np
 from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from scipy.spatial.transform import Rotation
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from armvision.config import Config
 from armvision.errors import ArmvisionError
@@ -69,7 +84,10 @@ Mode = Literal["sim", "real"]
 
 
 def is_loopback(host: str) -> bool:
-    """True for the loopback interface (``127.0.0.1``, ``::1``, ``localhost``)."""
+    """True for the loopback interface (``127.0.0.1``, ``::1``, ``[::1]``, ``localhost``)."""
+    host = host.lower().rstrip(".")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
     if host == "localhost":
         return True
     try:
@@ -78,59 +96,219 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+def machine_names() -> frozenset[str]:
+    """This machine's own names: its host name, ``<name>.local`` and its full name."""
+    name = socket.gethostname().lower()
+    names = {name, f"{name}.local"}
+    with contextlib.suppress(OSError, UnicodeError):  # no resolver: the plain names will do
+        names.add(socket.getfqdn().lower())
+    return frozenset(n.rstrip(".") for n in names if n)
+
+
+def split_host(value: str) -> tuple[str, int | None] | None:
+    """A Host header (``name[:port]``, ``[v6][:port]``) as (host, port); None if it is none."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        end = value.find("]")
+        host, rest = value[1:end], value[end + 1 :]
+        if end < 0 or not _is_ip(host):
+            return None
+    else:
+        host, sep, port = value.partition(":")
+        rest = sep + port
+    if rest and not (rest[0] == ":" and rest[1:].isdigit() and len(rest) <= 6):
+        return None
+    if not host or not all(c.isascii() and (c.isalnum() or c in "-._:%") for c in host):
+        return None
+    return host.rstrip("."), int(rest[1:]) if rest else None
+
+
+DEFAULT_PORTS = {"http": 80, "https": 443}
+
+
+def same_origin(origin: str, host_header: str) -> bool:
+    """Is ``origin`` (a browser's Origin header) the server that ``host_header`` names?"""
+    scheme, sep, netloc = origin.strip().lower().partition("://")
+    if not sep or scheme not in DEFAULT_PORTS or "/" in netloc or "@" in netloc:
+        return False
+    theirs, ours = split_host(netloc), split_host(host_header)
+    if theirs is None or ours is None:
+        return False
+    default = DEFAULT_PORTS[scheme]  # a Host without a port: the one the origin's scheme uses
+    return theirs[0] == ours[0] and (theirs[1] or default) == (ours[1] or default)
+
+
+MIN_TOKEN = 16
+MAKE_TOKEN = "python -c 'import secrets; print(secrets.token_urlsafe(18))'"
+
+
 def resolve_token(host: str, configured: str = "") -> str | None:
     """The token the app will require: ``$ARMVISION_UI_TOKEN``, else ``ui.token``, else a new
-    random one when ``host`` is not the loopback, else None (no token on localhost)."""
-    token = os.environ.get(TOKEN_ENV) or configured
+    random one when ``host`` is not the loopback, else None (no token on localhost). A token
+    given must have at least 16 characters and no spaces (ArmvisionError saying how to make
+    one)."""
+    from_env = os.environ.get(TOKEN_ENV)
+    token = from_env or configured
     if token:
+        if len(token) < MIN_TOKEN or any(c.isspace() for c in token):
+            where = f"${TOKEN_ENV}" if from_env else "ui.token"
+            raise ArmvisionError(
+                f"{where} must be at least {MIN_TOKEN} characters with no spaces (it has "
+                f"{len(token)}): make one with {MAKE_TOKEN}"
+            )
         return token
     return None if is_loopback(host) else secrets.token_urlsafe(18)
 
 
-class TokenGuard:
-    """ASGI middleware: every HTTP request and WebSocket must carry the token."""
+def _carried_token(scope: dict[str, Any], headers: dict[str, str]) -> str | None:
+    query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+    if query.get("token"):
+        return query["token"][0]
+    auth = headers.get("authorization", "")
+    if auth.lower().startswith("bearer "):
+        return auth[7:].strip()
+    cookie = SimpleCookie()
+    try:
+        cookie.load(headers.get("cookie", ""))
+    except Exception:  # a malformed cookie header carries no token
+        return None
+    return cookie[COOKIE].value if COOKIE in cookie else None
 
-    def __init__(self, app: Any, token: str) -> None:
+
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+#: On every HTTP answer: no framing by other sites, no content sniffing, no embedding of the
+#: video in other sites' pages, no Referer (the page's address may hold the token).
+SECURITY_HEADERS = {
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cross-Origin-Resource-Policy": "same-origin",
+}
+
+
+def content_security_policy(host: str) -> str:
+    """The page's policy: its own script, style, images and sockets only (plus the ``data:``
+    favicon), no plugins, no forms elsewhere, no framing. ``host``: a checked Host header."""
+    return (
+        "default-src 'self'; img-src 'self' data:; "
+        f"connect-src 'self' ws://{host} wss://{host}; "
+        "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
+    )
+
+
+class Guard:
+    """ASGI middleware in front of the whole app; for every HTTP request and WebSocket:
+
+    - the Host header must name this server (:meth:`OperatorUI.host_allowed`, against DNS
+      rebinding): else 403;
+    - a POST, and a socket, with an Origin must come from the server's own page: else 403 (no
+      Origin at all is a script such as curl: browsers send one on every POST and socket);
+    - the token, when there is one (:func:`resolve_token`): else 401;
+    - every HTTP answer carries :data:`SECURITY_HEADERS` and :func:`content_security_policy`;
+    - an exception out of the app is a bug: one traceback in the log, a one-line 500.
+
+    A refused socket is closed before it is accepted (the client sees 403).
+    """
+
+    def __init__(self, app: Any, ui: OperatorUI) -> None:
         self.app = app
-        self.token = token
+        self.ui = ui
 
-    def _carried(self, scope: dict[str, Any]) -> str | None:
-        query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
-        if query.get("token"):
-            return query["token"][0]
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
-        auth = headers.get("authorization", "")
-        if auth.lower().startswith("bearer "):
-            return auth[7:].strip()
-        cookie = SimpleCookie()
-        try:
-            cookie.load(headers.get("cookie", ""))
-        except Exception:  # a malformed cookie header carries no token
-            return None
-        return cookie[COOKIE].value if COOKIE in cookie else None
+    def refusal(self, scope: dict[str, Any], headers: dict[str, str]) -> tuple[int, str] | None:
+        """(status, message) if this request or socket is refused, else None."""
+        host = headers.get("host", "")
+        parsed = split_host(host)
+        if parsed is None or not self.ui.host_allowed(parsed[0]):
+            return 403, (
+                f"this armvision server does not answer to the host name "
+                f"{_short(host) if host else '(none)'}: open "
+                "it by its address, or add the name to ui.allowed_hosts"
+            )
+        origin = headers.get("origin")
+        checked = scope["type"] == "websocket" or scope.get("method") not in SAFE_METHODS
+        if checked and origin is not None and not same_origin(origin, host):
+            return 403, (
+                f"requests from another site ({_short(origin)}) are refused: use the armvision "
+                "page itself, or a script that sends no Origin header"
+            )
+        token = self.ui.token
+        if token is not None:
+            carried = _carried_token(scope, headers)
+            if carried is None or not secrets.compare_digest(carried.encode(), token.encode()):
+                return 401, (
+                    "this armvision server needs its access token: open the URL it printed "
+                    "at start (…/?token=…), or send 'Authorization: Bearer <token>'"
+                )
+        return None
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
             return
-        carried = self._carried(scope)
-        if carried is not None and secrets.compare_digest(carried.encode(), self.token.encode()):
-            await self.app(scope, receive, send)
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        what = f"{scope.get('method', 'socket')} {_short(scope.get('path', ''), 80)}"
+        refusal = self.refusal(scope, headers)
+        if refusal is not None:
+            status, message = refusal
+            log.warning("refused %s: %s", what, message)
+            if scope["type"] == "websocket":
+                await receive()  # websocket.connect
+                await send({"type": "websocket.close", "code": 1008})
+                return
+            extra = {"WWW-Authenticate": "Bearer"} if status == 401 else None
+            response = JSONResponse({"error": message}, status_code=status, headers=extra)
+            await response(scope, receive, self._secured(send, headers.get("host", "")))
             return
-        log.warning("refused %s %s: no valid token", scope["type"], scope.get("path"))
-        if scope["type"] == "websocket":
-            await receive()  # websocket.connect
-            await send({"type": "websocket.close", "code": 1008})
-            return
-        response = JSONResponse(
-            {
-                "error": "this armvision server needs its access token: open the URL it "
-                "printed at start (…/?token=…), or send 'Authorization: Bearer <token>'"
-            },
-            status_code=401,
-            headers={"WWW-Authenticate": "Bearer"},
-        )
-        await response(scope, receive, send)
+        started = False
+        secured = self._secured(send, headers["host"]) if scope["type"] == "http" else send
+
+        async def send_noting(message: dict[str, Any]) -> None:
+            nonlocal started
+            if message["type"] in ("http.response.start", "websocket.accept"):
+                started = True
+            await secured(message)
+
+        try:
+            await self.app(scope, receive, send_noting)
+        except Exception as exc:  # a bug: once in the log, one line to the client
+            log.exception("%s failed", what)
+            if scope["type"] == "http" and not started:
+                response = JSONResponse(
+                    {"error": f"internal error ({type(exc).__name__}); see the server log"},
+                    status_code=500,
+                )
+                await response(scope, receive, secured)
+
+    @staticmethod
+    def _secured(send: Any, host: str) -> Any:
+        """``send`` adding the security headers to the answer's start."""
+        extra = [(k.lower().encode(), v.encode()) for k, v in SECURITY_HEADERS.items()]
+        if split_host(host) is not None:
+            policy = content_security_policy(host.strip().lower())
+        else:  # a refused Host: nothing of it goes into the answer
+            policy = "default-src 'none'; frame-ancestors 'none'"
+        extra.append((b"content-security-policy", policy.encode()))
+
+        async def secured(message: dict[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                have = {k.lower() for k, _ in message.get("headers", [])}
+                message = dict(message)
+                message["headers"] = [
+                    *message.get("headers", []),
+                    *(h for h in extra if h[0] not in have),
+                ]
+            await send(message)
+
+        return secured
 
 
 # --------------------------------------------------------------------------- actions
@@ -160,16 +338,25 @@ ACTIONS: dict[str, Action] = {
 
 
 class ActionBody(BaseModel):
-    """The parameters an action may take (each action accepts only its own)."""
+    """The parameters an action may take (each action accepts only its own). Strict: ids are
+    JSON integers and the duration a JSON number, never a string or a boolean."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     track_id: int | None = Field(None, ge=0)
     tag_id: int | None = Field(None, ge=0)
     duration_s: float | None = Field(None, gt=0.0, le=3600.0)
 
 
+#: What each parameter must be, for the messages.
+PARAMETER_RULES = {
+    "track_id": "a bottle's track id, a JSON integer (the page's list of tracks has them)",
+    "tag_id": "a tag id, a JSON integer of 0 or more",
+    "duration_s": "a number of seconds above 0 and at most 3600 (a JSON number, not a string)",
+}
+
+
 class DetectorBody(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     enabled: bool
 
 
@@ -181,15 +368,136 @@ class RequestError(ArmvisionError):
         self.status = status
 
 
-def _validation_message(exc: ValidationError) -> str:
-    parts = []
-    for e in exc.errors():
-        key = ".".join(str(p) for p in e["loc"]) or "body"
+class ClientGone(Exception):  # noqa: N818 - an event, not an error of ours
+    """The client closed its connection before its request body was in."""
+
+
+#: The most a request body may be (the largest real one is under 100 bytes).
+BODY_LIMIT = 64 * 1024
+MESSAGE_LIMIT = 300
+
+
+def _one_line(text: str, limit: int = MESSAGE_LIMIT) -> str:
+    """``text`` on one line, at most ``limit`` characters, encodable (no lone surrogates)."""
+    text = " ".join(text.split()).encode("utf-8", "backslashreplace").decode("utf-8")
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _short(value: Any, n: int = 40) -> str:
+    """A short quotation of a value from a request (a prefix of a long one)."""
+    r = reprlib.Repr()
+    r.maxstring = r.maxother = r.maxlong = n
+    r.maxlevel = 2
+    r.maxlist = r.maxtuple = r.maxdict = r.maxset = 4
+    try:
+        text = r.repr(value)
+    except Exception:  # e.g. an int too long to print: say what it is
+        text = f"a {type(value).__name__}"
+    return _one_line(text, n + 12)
+
+
+def _id_list(ids: list[int], limit: int = 10) -> str:
+    text = ", ".join(f"#{i}" for i in ids[:limit])
+    return (text + (", …" if len(ids) > limit else "")) or "none"
+
+
+def _refuse_constant(name: str) -> Any:
+    raise RequestError(400, f"{name} is not a JSON number: send a finite number")
+
+
+async def read_json(request: Request) -> Any:
+    """The request's JSON body (an empty one is ``{}``): RequestError 415 unless it says
+    ``Content-Type: application/json``, 413 above :data:`BODY_LIMIT`, 400 unless it is UTF-8
+    JSON; ClientGone if the client leaves before it is in."""
+    content_type = request.headers.get("content-type", "")
+    if content_type.split(";")[0].strip().lower() != "application/json":
+        got = _short(content_type) if content_type else "none"
+        raise RequestError(
+            415, f"send the body as JSON with 'Content-Type: application/json' (it was {got})"
+        )
+    too_big = RequestError(
+        413, f"the body is over {BODY_LIMIT // 1024} KiB: send only the action's parameters"
+    )
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and (len(length) > 9 or int(length) > BODY_LIMIT):
+        raise too_big
+    raw = bytearray()
+    try:
+        async for chunk in request.stream():
+            raw += chunk
+            if len(raw) > BODY_LIMIT:
+                raise too_big
+    except ClientDisconnect:
+        raise ClientGone from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RequestError(400, "the body is not UTF-8 text: send JSON encoded as UTF-8") from None
+    if not text.strip():
+        return {}
+    try:
+        return json.loads(text, parse_constant=_refuse_constant)
+    except RecursionError:
+        raise RequestError(
+            400, "the body's JSON is nested too deeply: send one flat object of parameters"
+        ) from None
+    except json.JSONDecodeError as exc:
+        raise RequestError(
+            400,
+            f"the body is not valid JSON ({exc.msg} at character {exc.pos}): send an object "
+            'of parameters such as {} or {"track_id": 3}',
+        ) from None
+    except ValueError:  # an integer of more digits than Python converts
+        raise RequestError(
+            400, "the body has a number too long to read: send ids and seconds as plain numbers"
+        ) from None
+
+
+def _action_params(name: str, action: Action, body: Any) -> ActionBody:
+    """The parameters of action ``name`` from a request body (RequestError 400 if wrong)."""
+    takes = f"it takes {', '.join(sorted(action.params))}" if action.params else "it takes none"
+    if not isinstance(body, dict):
+        raise RequestError(
+            400,
+            f"{name}: the body must be a JSON object of parameters ({takes}), not {_short(body)}",
+        )
+    try:
+        params = ActionBody.model_validate(body)
+    except ValidationError as exc:
+        errors = exc.errors()
+        e = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
+        key = e["loc"][0] if e["loc"] else "body"
+        more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
         if e["type"] == "extra_forbidden":
-            parts.append(f"unknown parameter '{key}'")
+            message = f"{name}: unknown parameter {_short(key)}; {takes}"
         else:
-            parts.append(f"'{key}': {e['msg']} (got {e.get('input')!r})")
-    return "; ".join(parts)
+            rule = PARAMETER_RULES.get(str(key), "something else")
+            message = f"{name}: {key} must be {rule}, not {_short(e.get('input'))}"
+        raise RequestError(400, message + more) from None
+    given = {k for k, v in params.model_dump().items() if v is not None}
+    if given - action.params:
+        raise RequestError(
+            400, f"{name} takes no {', '.join(sorted(given - action.params))} ({takes})"
+        )
+    return params
+
+
+def _detector_body(name: str, body: Any) -> DetectorBody:
+    """The switch of detector ``name`` from a request body (RequestError 400 if wrong)."""
+    what = f'{name}: send {{"enabled": true}} or {{"enabled": false}}'
+    if not isinstance(body, dict):
+        raise RequestError(400, f"{what}, not {_short(body)}")
+    try:
+        return DetectorBody.model_validate(body)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        if e["type"] == "extra_forbidden":
+            raise RequestError(400, f"{what} (unknown parameter {_short(e['loc'][0])})") from None
+        if e["type"] == "missing":
+            raise RequestError(400, what) from None
+        raise RequestError(
+            400, f"{name}: enabled must be true or false (a JSON boolean), not {_short(e['input'])}"
+        ) from None
 
 
 # --------------------------------------------------------------------------- state
@@ -333,6 +641,10 @@ class OperatorUI:
         self._payload_lock = threading.Lock()
         self._jpeg: dict[str, tuple[int, bytes]] = {}
         self._jpeg_lock = threading.Lock()
+        self._allowed_hosts = frozenset(
+            h.strip().lower().strip("[]").rstrip(".") for h in self.settings.allowed_hosts
+        )
+        self.bind(self.settings.host)  # until a Server says where it listens
         self.app = self._build()
 
     # ---------------------------------------------------------------- serving helpers
@@ -379,38 +691,65 @@ class OperatorUI:
             self._jpeg[view] = result
         return result
 
-    def start_action(self, name: str, body: dict[str, Any]) -> int:
-        """Start action ``name`` in the background; its task id (RequestError if not now)."""
+    def start_action(self, name: str, body: Any) -> int:
+        """Start action ``name`` with the parameters in ``body`` (a request's JSON) in the
+        background; its task id. RequestError if not: 404 no such action, 400 bad parameters
+        or ids that name nothing (decided first), 409 not now (busy, or what it needs)."""
         action = ACTIONS.get(name)
         if action is None:
-            raise RequestError(404, f"no action {name!r}; the actions are {', '.join(ACTIONS)}")
-        try:
-            params = ActionBody.model_validate(body)
-        except ValidationError as exc:
-            raise RequestError(400, f"{name}: {_validation_message(exc)}") from None
-        given = {k for k, v in params.model_dump().items() if v is not None}
-        if given - action.params:
             raise RequestError(
-                400,
-                f"{name} takes no {', '.join(sorted(given - action.params))}"
-                + (f" (it takes {', '.join(sorted(action.params))})" if action.params else ""),
+                404, f"no action {_short(name)}; the actions are {', '.join(ACTIONS)}"
             )
+        params = _action_params(name, action, body)
         with self._submit:
             state = self.system.snapshot()
+            self._check_ids(state, params)
             refusal = action_states(state)[name]["reason"]  # busy first, then what it needs
             if refusal is not None:
                 raise RequestError(409, f"{action.label}: {refusal}")
-            if params.track_id is not None:
-                track = state.track(params.track_id)
-                if track is None or track.label != "bottle":
-                    have = ", ".join(f"#{t.id}" for t in state.bottles()) or "none"
-                    raise RequestError(
-                        400, f"no bottle track #{params.track_id} (bottles tracked now: {have})"
-                    )
             fn, kwargs = self._task(name, params)
             task_id = self.system.submit(name, fn, **kwargs)
         self.changed()
         return task_id
+
+    def _check_ids(self, state: SystemState, params: ActionBody) -> None:
+        """RequestError 400 for a track id that is no tracked bottle, or the gripper's own tag
+        as the tag to follow, naming what there is."""
+        if params.track_id is not None:
+            track = state.track(params.track_id)
+            if track is None or track.label != "bottle":
+                have = _id_list([t.id for t in state.bottles()])
+                raise RequestError(
+                    400,
+                    f"no bottle track #{_short(params.track_id)} (bottles tracked now: {have}): "
+                    "pick one of those, or none for the nearest",
+                )
+        own = self.config.tag.id
+        if params.tag_id is not None and params.tag_id == own:
+            seen = sorted({t.id for t in state.tags} - {own})
+            in_view = ", ".join(str(i) for i in seen[:10]) or "none"
+            raise RequestError(
+                400,
+                f"tag {own} is the gripper's own tag and cannot be followed (tags in view now: "
+                f"{in_view}): pass one of those, or no tag_id for follow.tag_id "
+                f"({self.config.follow.tag_id})",
+            )
+
+    def bind(self, host: str) -> None:
+        """Serve on ``host`` (the address listened on): which Host names are answered."""
+        self.bound_host = host
+        self._machine_names = frozenset() if is_loopback(host) else machine_names()
+
+    def host_allowed(self, name: str) -> bool:
+        """May a request name ``name`` as its Host (no port, no brackets)? The loopback names
+        and ``ui.allowed_hosts`` always; bound off the loopback, also IP literals (a DNS
+        rebinding page has a name, not an address) and this machine's names."""
+        name = name.lower().rstrip(".")
+        if name in self._allowed_hosts or is_loopback(name):
+            return True
+        if is_loopback(self.bound_host):
+            return False
+        return _is_ip(name) or name in self._machine_names or name == self.bound_host.lower()
 
     def changed(self) -> None:
         """Something was asked of the system: the next state message is made afresh."""
@@ -450,27 +789,44 @@ class OperatorUI:
         app = FastAPI(title="armvision", docs_url=None, redoc_url=None, openapi_url=None)
         ui = self
 
+        def error(message: str, status: int) -> JSONResponse:
+            return JSONResponse({"error": _one_line(message)}, status_code=status)
+
         @app.exception_handler(RequestError)
         async def _request_error(request: Request, exc: RequestError) -> JSONResponse:
-            return JSONResponse({"error": str(exc)}, status_code=exc.status)
+            return error(str(exc), exc.status)
 
         @app.exception_handler(ArmvisionError)
         async def _armvision_error(request: Request, exc: ArmvisionError) -> JSONResponse:
-            return JSONResponse({"error": str(exc)}, status_code=400)
+            return error(str(exc), 400)
+
+        @app.exception_handler(ClientGone)
+        async def _client_gone(request: Request, exc: ClientGone) -> Response:
+            log.info(
+                "%s %s: the client left before its body was in",
+                request.method,
+                _short(request.url.path, 80),
+            )
+            return Response(status_code=400)  # nobody to read it
 
         @app.exception_handler(StarletteHTTPException)
         async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-            detail = exc.detail if isinstance(exc.detail, str) else "request refused"
+            path = _short(request.url.path, 80)
             if exc.status_code == 404:
-                detail = f"nothing at {request.url.path}"
-            return JSONResponse({"error": detail}, status_code=exc.status_code)
+                detail = f"nothing at {path}: the page is at /, the API under /api/"
+            elif exc.status_code == 405:
+                allowed = (exc.headers or {}).get("Allow", "another method")
+                detail = f"{request.method} is not for {path}: use {allowed}"
+            else:
+                detail = exc.detail if isinstance(exc.detail, str) else "request refused"
+            return error(detail, exc.status_code)
 
-        @app.exception_handler(Exception)
-        async def _crash(request: Request, exc: Exception) -> JSONResponse:
-            log.exception("%s %s failed", request.method, request.url.path)
-            return JSONResponse(
-                {"error": f"internal error ({type(exc).__name__}: {exc}); see the server log"},
-                status_code=500,
+        @app.exception_handler(RequestValidationError)
+        async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+            return error(
+                f"bad request to {_short(request.url.path, 80)}: see the API list "
+                "in armvision/ui/server.py",
+                400,
             )
 
         @app.get("/")
@@ -505,7 +861,7 @@ class OperatorUI:
 
         def _view(view: str) -> str:
             if view not in ("color", "depth"):
-                raise RequestError(400, f"view must be 'color' or 'depth', not {view!r}")
+                raise RequestError(400, f"view must be 'color' or 'depth', not {_short(view)}")
             return view
 
         @app.get("/api/frame.jpg")
@@ -542,18 +898,18 @@ class OperatorUI:
 
         @app.post("/api/actions/{name}", status_code=202)
         async def action(name: str, request: Request) -> dict[str, Any]:
-            raw = await request.body()
-            try:
-                body = json.loads(raw) if raw.strip() else {}
-            except json.JSONDecodeError as exc:
-                raise RequestError(400, f"the body must be JSON: {exc}") from None
-            if not isinstance(body, dict):
-                raise RequestError(400, "the body must be a JSON object of parameters")
+            if name not in ACTIONS:  # before the body: the name is the mistake
+                raise RequestError(
+                    404, f"no action {_short(name)}; the actions are {', '.join(ACTIONS)}"
+                )
+            body = await read_json(request)
             task_id = await run_in_threadpool(ui.start_action, name, body)
             return {"task_id": task_id, "name": name}
 
         @app.post("/api/stop")
         async def stop() -> dict[str, Any]:
+            # A safety control: no body or content type is asked for (the Guard still refuses
+            # other sites).
             await run_in_threadpool(ui.system.stop_task)
             ui.changed()
             return {"stopped": True}
@@ -562,18 +918,14 @@ class OperatorUI:
         async def detector(name: str, request: Request) -> dict[str, Any]:
             if name not in DETECTORS:
                 raise RequestError(
-                    404, f"no detector {name!r}; the detectors are {', '.join(DETECTORS)}"
+                    404, f"no detector {_short(name)}; the detectors are {', '.join(DETECTORS)}"
                 )
-            try:
-                body = DetectorBody.model_validate_json(await request.body() or b"{}")
-            except ValidationError as exc:
-                raise RequestError(400, f"{name}: {_validation_message(exc)}") from None
+            body = _detector_body(name, await read_json(request))
             ui.system.set_detector(name, body.enabled)
             ui.changed()
             return {"detectors": dict(ui.system.enabled)}
 
-        if self.token is not None:
-            app.add_middleware(TokenGuard, token=self.token)
+        app.add_middleware(Guard, ui=self)
         return app
 
 
@@ -608,6 +960,7 @@ class Server:
         self.socket = sock
         self.host = str(sock.getsockname()[0])
         self.port = int(sock.getsockname()[1])
+        ui.bind(self.host)
         self.server = uvicorn.Server(
             uvicorn.Config(
                 ui.app,

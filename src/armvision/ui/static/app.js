@@ -26,14 +26,16 @@ function readable(msg) {
 }
 
 /**
- * fetch() with the token; resolves to the parsed JSON body, rejects with an Error whose message
+ * fetch() with the token (and a JSON body on a POST); resolves to the parsed JSON body, rejects with an Error whose message
  * is readable: the server's {"error": ...}, else "HTTP <status>: <body, 200 chars>".
  */
 async function api(method, path, body) {
   const init = { method, headers: {} };
-  if (body !== undefined) {
+  if (method !== 'GET') {
+    // The server takes a state-changing request only as JSON (an HTML form on another site
+    // cannot send that), so every POST says so, with {} when it has no parameters.
     init.headers['Content-Type'] = 'application/json';
-    init.body = JSON.stringify(body);
+    init.body = JSON.stringify(body === undefined ? {} : body);
   }
   let resp;
   try {
