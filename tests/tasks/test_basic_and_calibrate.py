@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from armvision.config import Config
+from armvision.errors import CalibrationError
 from armvision.eval.fusion import perturbed_calibration
 from armvision.geometry import pose_error
 from armvision.robot.kinematics import VX300S
-from armvision.runtime.build import load_calibration, sim_system
+from armvision.runtime.build import calibrate_empty_table, load_calibration, sim_system
 from armvision.runtime.state import CalibrationStatus
 from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks import basic
@@ -170,3 +171,11 @@ def test_a_good_calibration_is_used_even_when_it_cannot_be_saved(tmp_path) -> No
         (warning,) = status.result["warnings"]
         assert "could not be kept as" in warning and warning in status.message
     assert np.allclose(load_calibration(path).T_base_cam, system.calibration.T_base_cam)
+
+
+def test_the_simulated_calibrate_as_a_user_would_refuses_an_implausible_result() -> None:
+    """calibrate_empty_table (the demo's and `armvision grab --sim`'s calibration) uses the
+    same plausibility check: before, any solve was adopted."""
+    config = fast_calibration_config(min_sample_spread_m=2.0)
+    with pytest.raises(CalibrationError, match=r"^calibration refused: the tag positions spread"):
+        calibrate_empty_table(config, 1)

@@ -76,15 +76,18 @@ def result_status(result) -> CalibrationStatus:
 def calibrate_empty_table(config: Config, seed: int, T_base_cam: np.ndarray | None = None):
     """Calibrate in the simulation as a user would: an empty table, the same camera placement
     (``T_base_cam``, default the configured one) and the same arm (encoder offsets of
-    ``seed``). Returns (CalibrationStatus, CalibrationResult with the truth filled in)."""
+    ``seed``). Returns (CalibrationStatus, CalibrationResult with the truth filled in);
+    CalibrationError if the result fails the plausibility check, as ``armvision calibrate``."""
     import dataclasses
 
     from armvision.calibration.procedure import calibrate_sim
+    from armvision.calibration.quality import check_quality
 
     empty = dataclasses.replace(
         config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0, loose_tags=0)
     )
     result = calibrate_sim(empty, seed, T_base_cam=T_base_cam)
+    check_quality(result, config.calibration, "check tag.* and calibration.* and run again")
     return result_status(result), result
 
 
