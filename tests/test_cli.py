@@ -63,3 +63,22 @@ def test_errors_are_one_line_without_traceback(tmp_path):
     assert "Traceback" not in result.stderr
     missing = run("--config", str(tmp_path / "nope.toml"), "config", cwd=tmp_path)
     assert missing.returncode == 2 and "nope.toml does not exist" in missing.stderr
+
+
+def test_a_camera_mode_the_d435i_lacks_is_a_config_error_not_a_crash(tmp_path):
+    # camera.height 1 or 2 used to segfault the AprilTag detector (exit status 139, no message).
+    result = run("--set", "camera.height=1", "perceive", "--out", str(tmp_path / "p"), cwd=tmp_path)
+    assert result.returncode == 2, (result.returncode, result.stderr)
+    assert "'camera.height'" in result.stderr and "640x480@6/15/30/60" in result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+def test_usage_errors_are_one_line_in_a_real_process(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(b"\xff\xfe[tag]\n")
+    result = run("--config", str(bad), "info", cwd=tmp_path)
+    assert result.returncode == 2 and "not valid UTF-8" in result.stderr
+    port = run("ui", "--port", "70000", cwd=tmp_path)  # used to listen on 4464 (wrapped)
+    assert port.returncode == 2 and "argument --port" in port.stderr
+    for failed in (result, port):
+        assert len(failed.stderr.splitlines()) == 1 and "Traceback" not in failed.stderr

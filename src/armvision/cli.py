@@ -23,7 +23,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from armvision import __version__
+from armvision.cli_tasks import MAX_SEED, millimetres, out_dir, seed, seeds, writable_dir
 from armvision.cli_tasks import add_parsers as add_task_parsers
+from armvision.cli_tasks import int_in as _int_in
 from armvision.config import (
     CalibrationConfig,
     Config,
@@ -176,6 +178,7 @@ def cmd_config(args: argparse.Namespace, config: Config) -> int:
 def cmd_sim_snapshot(args: argparse.Namespace, config: Config) -> int:
     from armvision.sim.snapshot import write_snapshot
 
+    writable_dir(args.out)  # before the scene is built and rendered
     record = write_snapshot(config, args.seed, args.out, pose=args.pose)
     print(f"scene seed {args.seed}, arm at {args.pose}; wrote:")
     for name, path in record["files"].items():
@@ -237,12 +240,9 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
 
 
 def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
-    from pathlib import Path
-
     from armvision.sim.snapshot import _write_png
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = writable_dir(args.out)  # before the camera or the scene starts
     if args.real:
         from armvision.camera.realsense import RealSenseCamera
 
@@ -502,8 +502,15 @@ def cmd_eval_calibration(args: argparse.Namespace, config: Config) -> int:
 # --------------------------------------------------------------------------- entry point
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (no usage block), exit status 2 as before."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="armvision",
         description="Vision-guided manipulation with an Interbotix ViperX-300s and a RealSense "
         "D435i, or their MuJoCo simulation.",
@@ -538,8 +545,10 @@ def build_parser() -> argparse.ArgumentParser:
     snapshot = sim_sub.add_parser(
         "snapshot", help="write the colour image, false-colour depth and ground truth of a scene"
     )
-    snapshot.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
-    snapshot.add_argument("--out", default="snapshot", metavar="DIR", help="output directory")
+    snapshot.add_argument("--seed", type=seed, default=0, help="scene seed (default 0)")
+    snapshot.add_argument(
+        "--out", type=out_dir, default="snapshot", metavar="DIR", help="output directory"
+    )
     snapshot.add_argument("--pose", choices=("home", "sleep"), default="home", help="arm pose")
     snapshot.set_defaults(func=cmd_sim_snapshot)
 
@@ -549,8 +558,10 @@ def build_parser() -> argparse.ArgumentParser:
     source = perceive.add_mutually_exclusive_group()
     source.add_argument("--sim", action="store_true", help="a simulated scene (default)")
     source.add_argument("--real", action="store_true", help="the RealSense camera")
-    perceive.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
-    perceive.add_argument("--out", default="perceive", metavar="DIR", help="output directory")
+    perceive.add_argument("--seed", type=seed, default=0, help="scene seed (simulation)")
+    perceive.add_argument(
+        "--out", type=out_dir, default="perceive", metavar="DIR", help="output directory"
+    )
     perceive.set_defaults(func=cmd_perceive)
 
     calibrate = sub.add_parser(
@@ -579,28 +590,37 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")
     eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     perception = eval_sub.add_parser("perception", help="tag poses and object detection")
-    perception.add_argument("--seeds", default="0-19", help="scene seeds: 7, 0-19 or 1,4,9")
+    perception.add_argument(
+        "--seeds", type=seeds, default="0-19", help="scene seeds: 7, 0-19 or 1,4,9"
+    )
     perception.add_argument("--json", action="store_true", help="one JSON object on stdout")
     perception.set_defaults(func=cmd_eval_perception)
     liquid = eval_sub.add_parser("liquid", help="liquid level in bottles")
-    liquid.add_argument("--n", type=int, default=50, help="number of bottles (default 50)")
-    liquid.add_argument("--seed", type=int, default=0)
+    liquid.add_argument(
+        "--n", type=_int_in(1, 10_000, "a count"), default=50, help="bottles (default 50)"
+    )
+    liquid.add_argument("--seed", type=seed, default=0)
     liquid.add_argument("--json", action="store_true", help="one JSON object on stdout")
     liquid.set_defaults(func=cmd_eval_liquid)
     fusion = eval_sub.add_parser(
         "fusion", help="Kalman fusion of camera and encoders, and object tracking"
     )
-    fusion.add_argument("--seed", type=int, default=0)
+    fusion.add_argument("--seed", type=seed, default=0)
     fusion.add_argument(
-        "--waypoints", type=int, default=10, help="poses of the scripted motion (default 10)"
+        "--waypoints",
+        type=_int_in(2, 1000, "a count of poses"),
+        default=10,
+        help="poses of the scripted motion (default 10)",
     )
     fusion.add_argument("--json", action="store_true", help="one JSON object on stdout")
     fusion.set_defaults(func=cmd_eval_fusion)
     calib = eval_sub.add_parser("calibration", help="camera-to-robot calibration, every solver")
-    calib.add_argument("--seeds", default="0-9", help="seeds: 7, 0-9 or 1,4,9 (default 0-9)")
+    calib.add_argument(
+        "--seeds", type=seeds, default="0-9", help="seeds: 7, 0-9 or 1,4,9 (default 0-9)"
+    )
     calib.add_argument(
         "--offset-error-mm",
-        type=float,
+        type=millimetres,
         default=0.0,
         help="tell the calibration a tag offset wrong by this much (default 0)",
     )
@@ -612,7 +632,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error already printed
+        return exc.code if isinstance(exc.code, int) else 2
+    seed_given = getattr(args, "seed", None)
+    if isinstance(seed_given, int) and not 0 <= seed_given <= MAX_SEED:
+        # A sub-parser that takes --seed as a plain int (calibrate) gets the same check.
+        print(
+            f"armvision: error: argument --seed: must be a seed, a whole number from 0 to "
+            f"{MAX_SEED}, not {seed_given} (see armvision --help)",
+            file=sys.stderr,
+        )
+        return 2
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

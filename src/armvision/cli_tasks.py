@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
+import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from armvision.config import Config
+from armvision.config import TAG_FAMILY_SIZES, Config
+from armvision.errors import ArmvisionError, ConfigError
 
 #: Seconds the stages run before a task starts, so tracks are confirmed and tags seen.
 WARM_UP_S = 1.5
@@ -25,12 +29,123 @@ def _say(message: str) -> None:
     print(f"armvision: {message}", file=sys.stderr, flush=True)
 
 
+# --------------------------------------------------------------------------- argument types
+# argparse ``type=`` functions: a bad value is argparse's one-line error naming the argument.
+
+#: Scene seeds: numpy's SeedSequence takes any non-negative int; 32 bits are plenty and print.
+MAX_SEED = 2**32 - 1
+#: At most this many scenes, trials or seeds in one evaluation.
+MAX_RUNS = 10_000
+
+
+def int_in(low: int, high: int, what: str) -> Callable[[str], int]:
+    """An int argument in ``low``..``high``; ``what`` says what it counts in the error."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be {what}, a whole number from {low} to {high}, not {text!r}"
+            )
+        return value
+
+    parse.__name__ = what  # argparse's fallback messages name the type
+    return parse
+
+
+def seconds(text: str) -> float:
+    """A duration argument: a finite number of seconds above 0, at most a day."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0.0 < value <= 86400.0):
+        raise argparse.ArgumentTypeError(
+            f"must be a duration in seconds above 0 and at most 86400, not {text!r}"
+        )
+    return value
+
+
+def millimetres(text: str) -> float:
+    """A distance argument: finite millimetres from 0 to 1000."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+        raise argparse.ArgumentTypeError(f"must be millimetres from 0 to 1000, not {text!r}")
+    return value
+
+
+def seeds(text: str) -> str:
+    """``--seeds``: one seed (7), a range (0-9) or a list (1,4,9), each 0..MAX_SEED, at most
+    MAX_RUNS in all; returned as given (armvision.eval.parse_seeds expands it)."""
+    from armvision.eval import parse_seeds
+
+    count = 0
+    for part in text.split(","):
+        first, sep, last = part.strip().partition("-")
+        try:
+            low = int(first)
+            high = int(last) if sep else low
+        except ValueError:
+            continue  # parse_seeds says what is wrong with it
+        if not 0 <= low <= high <= MAX_SEED:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: seeds run from 0 to {MAX_SEED}, a range low-high with low <= high"
+            )
+        count += high - low + 1
+        if count > MAX_RUNS:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: at most {MAX_RUNS} seeds; give a shorter range"
+            )
+    try:
+        parse_seeds(text)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def out_dir(text: str) -> str:
+    """An output directory argument: not empty (checked for writing by :func:`writable_dir`)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("give a directory, not an empty path")
+    return text
+
+
+seed = int_in(0, MAX_SEED, "a seed")
+port = int_in(0, 65535, "a TCP port (0: any free one)")
+runs = int_in(1, MAX_RUNS, "a count")
+track_id = int_in(0, 2**31 - 1, "a track id")
+tag_id = int_in(0, max(TAG_FAMILY_SIZES.values()) - 1, "a tag id")
+
+
+def writable_dir(path: str | Path, argument: str = "--out") -> Path:
+    """``path`` created if need be and checked writable, before anything slow starts; an
+    ArmvisionError naming ``argument`` otherwise."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        raise ArmvisionError(
+            f"{argument} {path}: cannot write there ({exc.strerror or exc}); choose a directory "
+            "you can write to"
+        ) from None
+    return out
+
+
 # --------------------------------------------------------------------------- armvision demo
 
 
 def cmd_demo(args: argparse.Namespace, config: Config) -> int:
     from armvision.demo import run_demo
 
+    writable_dir(args.out)  # before the calibration and the run, not after them
     report = run_demo(config, args.seed, args.out, args.calibration, say=_say)
     if args.json:
         print(json.dumps(report.to_dict(), indent=2))
@@ -233,7 +348,7 @@ def _where(
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
     where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
-    parser.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    parser.add_argument("--seed", type=seed, default=0, help="scene seed (simulation)")
     parser.add_argument("--calibration", metavar="PATH", help=calibration_help)
     if not task:
         return
@@ -250,28 +365,30 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     demo = sub.add_parser(
         "demo", help="the whole system on a simulated scene, with a report against the truth"
     )
-    demo.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
-    demo.add_argument("--out", default="out/demo", metavar="DIR", help="where the image goes")
+    demo.add_argument("--seed", type=seed, default=0, help="scene seed (default 0)")
+    demo.add_argument(
+        "--out", type=out_dir, default="out/demo", metavar="DIR", help="where the image goes"
+    )
     demo.add_argument("--calibration", metavar="PATH", help="load this instead of calibrating")
     demo.add_argument("--json", action="store_true", help="the report as JSON")
     demo.set_defaults(func=cmd_demo)
 
     grab = sub.add_parser("grab", help="grasp a bottle and lift it")
     _where(grab)
-    grab.add_argument("--track", type=int, help="bottle track id (default: nearest reachable)")
+    grab.add_argument("--track", type=track_id, help="bottle track id (default: nearest reachable)")
     grab.set_defaults(func=cmd_grab)
 
     analyze = sub.add_parser("analyze", help="measure a bottle's liquid level")
     _where(analyze)
-    analyze.add_argument("--track", type=int, help="bottle track id (default: nearest)")
+    analyze.add_argument("--track", type=track_id, help="bottle track id (default: nearest)")
     analyze.set_defaults(func=cmd_analyze)
 
     follow = sub.add_parser("follow", help="follow a tag or a bottle with the gripper")
     _where(follow)
     follow.add_argument("--target", choices=("tag", "bottle"), default="tag")
-    follow.add_argument("--tag-id", type=int, help="tag to follow (default follow.tag_id)")
-    follow.add_argument("--track", type=int, help="bottle track id (default: nearest)")
-    follow.add_argument("--duration", type=float, help="seconds (default follow.duration_s)")
+    follow.add_argument("--tag-id", type=tag_id, help="tag to follow (default follow.tag_id)")
+    follow.add_argument("--track", type=track_id, help="bottle track id (default: nearest)")
+    follow.add_argument("--duration", type=seconds, help="seconds (default follow.duration_s)")
     follow.add_argument("--mode", choices=("servo", "blocking"), default="servo")
     follow.set_defaults(func=cmd_follow)
 
@@ -288,12 +405,12 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
         help="address to listen on (default ui.host, 127.0.0.1); any other needs the token "
         "that is printed (or ui.token / $ARMVISION_UI_TOKEN)",
     )
-    ui.add_argument("--port", type=int, help="port (default ui.port, 8000)")
+    ui.add_argument("--port", type=port, help="port 0-65535 (default ui.port, 8000)")
     ui.set_defaults(func=cmd_ui)
 
     grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")
-    grab_eval.add_argument("--trials", type=int, default=50, help="scenes (default 50)")
-    grab_eval.add_argument("--seed", type=int, default=0, help="first scene seed (default 0)")
+    grab_eval.add_argument("--trials", type=runs, default=50, help="scenes (default 50)")
+    grab_eval.add_argument("--seed", type=seed, default=0, help="first scene seed (default 0)")
     grab_eval.add_argument(
         "--calibration",
         choices=("calibrate", "truth"),
@@ -304,7 +421,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     grab_eval.set_defaults(func=cmd_eval_grab)
 
     follow_eval = eval_sub.add_parser("follow", help="servo vs blocking tag following")
-    follow_eval.add_argument("--seed", type=int, default=0)
-    follow_eval.add_argument("--duration", type=float, help="seconds per mode")
+    follow_eval.add_argument("--seed", type=seed, default=0)
+    follow_eval.add_argument("--duration", type=seconds, help="seconds per mode")
     follow_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
     follow_eval.set_defaults(func=cmd_eval_follow)

@@ -67,9 +67,15 @@ def _usable_text(text: str) -> str:
     return text
 
 
-# A name, path or address: not empty, one printable line (a NUL in a path makes open() raise).
+def _not_blank(text: str) -> str:
+    if not text.strip():
+        raise ValueError("must not be blank")
+    return _usable_text(text)
+
+
+# A name, path or address: not blank, one printable line (a NUL in a path makes open() raise).
 Text = Annotated[
-    str, Strict(), StringConstraints(min_length=1, max_length=4096), AfterValidator(_usable_text)
+    str, Strict(), StringConstraints(min_length=1, max_length=4096), AfterValidator(_not_blank)
 ]
 # RealSense serials are digits; accept them unquoted in TOML and on the command line.
 SerialNumber = Annotated[
