@@ -82,3 +82,19 @@ def test_a_busy_port_is_a_one_line_error_before_anything_starts(tmp_path) -> Non
     assert f"cannot listen on 127.0.0.1:{port}" in result.stderr
     assert "--port" in result.stderr and "Traceback" not in result.stderr
     assert time.monotonic() - started < 20  # did not calibrate or build a simulation first
+
+
+def test_a_short_token_is_a_one_line_error_before_anything_starts(tmp_path) -> None:
+    started = time.monotonic()
+    result = subprocess.run(
+        [*ARMVISION, "ui", "--sim", "--host", "0.0.0.0", "--port", "0"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={**_env(), TOKEN_ENV: "hunter2"},
+        timeout=60,
+    )
+    assert result.returncode != 0
+    assert f"${TOKEN_ENV} must be at least 16 characters" in result.stderr
+    assert "secrets.token_urlsafe" in result.stderr and "Traceback" not in result.stderr
+    assert time.monotonic() - started < 20  # did not build a simulation first

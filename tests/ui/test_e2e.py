@@ -121,6 +121,15 @@ def page(browser: Browser, ui: RunningUI) -> Iterator[Page]:
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     page.js_errors = []  # type: ignore[attr-defined]
     page.on("pageerror", lambda exc: page.js_errors.append(str(exc)))  # type: ignore[attr-defined]
+    # Anything the page's Content-Security-Policy blocks is reported on the console.
+    page.on(
+        "console",
+        lambda msg: (
+            page.js_errors.append(msg.text)  # type: ignore[attr-defined]
+            if "Content Security Policy" in msg.text
+            else None
+        ),
+    )
     page.goto(ui.url + "/")
     expect(page.locator("#conn")).to_have_text("live", timeout=10_000)
     yield page

@@ -228,10 +228,10 @@ class Guard:
         host = headers.get("host", "")
         parsed = split_host(host)
         if parsed is None or not self.ui.host_allowed(parsed[0]):
+            named = _short(host) if host else "(none)"
             return 403, (
-                f"this armvision server does not answer to the host name "
-                f"{_short(host) if host else '(none)'}: open "
-                "it by its address, or add the name to ui.allowed_hosts"
+                f"this armvision server does not answer to the host name {named}: open it by "
+                "its address, or add the name to ui.allowed_hosts"
             )
         origin = headers.get("origin")
         checked = scope["type"] == "websocket" or scope.get("method") not in SAFE_METHODS
@@ -266,7 +266,7 @@ class Guard:
                 return
             extra = {"WWW-Authenticate": "Bearer"} if status == 401 else None
             response = JSONResponse({"error": message}, status_code=status, headers=extra)
-            await response(scope, receive, self._secured(send, headers.get("host", "")))
+            await response(scope, receive, self._secured(send, ""))  # no refused Host in it
             return
         started = False
         secured = self._secured(send, headers["host"]) if scope["type"] == "http" else send
