@@ -57,10 +57,17 @@ def test_agreement_is_zero_and_a_known_shift_is_measured() -> None:
 def test_a_turn_shows_in_the_rotation_and_small_errors_are_absorbed() -> None:
     cfg = CalibrationConfig()
     turned = T_BASE_CAM @ make_T(Rotation.from_euler("z", 1.5, degrees=True).as_matrix(), [0, 0, 0])
-    monitor = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG)
+    # Against a calibration whose own samples agreed (zero reference): the turn is seen.
+    monitor = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG, np.zeros(3))
     _feed(monitor, turned, 0.0, 3.0)
     assert monitor.status.rotation_deg == pytest.approx(1.5, abs=1e-6)
     assert monitor.status.drifted
+    # Without a reference (a bare transform) the first sightings set it; a turn after is seen.
+    learner = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG)
+    t = _feed(learner, T_BASE_CAM @ make_T(np.eye(3), [0, 0, 0]), 0.0, 2.0)
+    assert learner.status.rotation_deg == pytest.approx(0.0, abs=1e-6)
+    _feed(learner, turned, t, 3.0)
+    assert learner.status.drifted and learner.status.rotation_deg == pytest.approx(1.5, abs=1e-6)
     nudged = T_BASE_CAM.copy()
     nudged[:3, 3] += [0.004, 0.0, 0.0]  # 4 mm: the filter's job, not an alarm
     quiet = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG)

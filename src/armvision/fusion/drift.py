@@ -17,7 +17,10 @@ estimate's ambiguity) and a calibration fitted to tag positions keeps a rotation
 few tenths of a degree, which shows as a constant rotation disagreement at every pose. Both
 were there when the calibration was made: :func:`rotation_reference` takes the median
 rotation disagreement over the calibration's own samples, and the monitor measures rotation
-against it, so what it reports is the change since calibration.
+against it, so what it reports is the change since calibration. A calibration without samples
+(a bare transform, the simulator's truth) has no such reference: the first window of
+sightings after start sets it, so only the position then catches a camera turned before the
+start.
 
 Samples taken while the end effector moves fast are skipped: a few milliseconds' error in a
 frame's timestamp would then look like a disagreement.
@@ -138,8 +141,9 @@ class DriftMonitor:
         self.active = active
         self.T_base_cam = np.array(T_base_cam, dtype=float)
         self.T_ee_tag = np.array(T_ee_tag, dtype=float)
-        self.R_reference = (
-            np.eye(3)
+        # None: learnt from the first window of sightings (a bare transform has no samples).
+        self.R_reference: np.ndarray | None = (
+            None
             if rotation_reference is None
             else Rotation.from_rotvec(np.asarray(rotation_reference, dtype=float)).as_matrix()
         )
@@ -153,7 +157,8 @@ class DriftMonitor:
         """(position difference m, rotation vector rad), camera minus encoders, base frame; the
         rotation relative to the one seen at calibration."""
         dp, R = _disagreement(self.T_base_cam, self.T_ee_tag, q, T_cam_tag, self.model)
-        return dp, Rotation.from_matrix(R @ self.R_reference.T).as_rotvec()
+        reference = np.eye(3) if self.R_reference is None else self.R_reference
+        return dp, Rotation.from_matrix(R @ reference.T).as_rotvec()
 
     def observe(
         self, t: float, q: ArrayLike, T_cam_tag: ArrayLike, speed_mps: float = 0.0
@@ -162,7 +167,8 @@ class DriftMonitor:
         instant; ``speed_mps``: the end effector's speed then (fast samples are skipped)."""
         if not self.active or not speed_mps <= MAX_SPEED_MPS or not math.isfinite(t):
             return self.status
-        dp, dr = self.disagreement(q, T_cam_tag)
+        dp, R = _disagreement(self.T_base_cam, self.T_ee_tag, q, T_cam_tag, self.model)
+        dr = Rotation.from_matrix(R).as_rotvec()  # raw: the reference is applied below
         if not (np.all(np.isfinite(dp)) and np.all(np.isfinite(dr))):
             return self.status
         cfg = self.config
@@ -175,7 +181,11 @@ class DriftMonitor:
             self.status = replace(self.status, samples=n, checked_at=t)
             return self.status
         translation_mm = 1000.0 * float(np.linalg.norm(np.median([w[1] for w in window], axis=0)))
-        rotation_deg = math.degrees(float(np.linalg.norm(np.median([w[2] for w in window], 0))))
+        R_median = Rotation.from_rotvec(np.median([w[2] for w in window], axis=0)).as_matrix()
+        if self.R_reference is None:
+            self.R_reference = R_median
+        rotation = Rotation.from_matrix(R_median @ self.R_reference.T).as_rotvec()
+        rotation_deg = math.degrees(float(np.linalg.norm(rotation)))
         over = translation_mm > cfg.drift_mm or rotation_deg > cfg.drift_deg
         drifted, since = self.status.drifted, self.status.since
         if not drifted:

@@ -575,7 +575,7 @@ def state_payload(state: SystemState, system: System, mode: Mode) -> dict[str, A
                 "height": int(frame.color.shape[0]),
             },
             "arm": arm,
-            "calibration": state.calibration.to_dict(),
+            "calibration": {**state.calibration.to_dict(), "drift": state.drift.to_dict()},
             "health": {name: h.to_dict() for name, h in state.health.items()},
             "detectors": dict(state.detectors),
             "tracks": tracks,
@@ -601,6 +601,8 @@ def action_states(state: SystemState) -> dict[str, dict[str, Any]]:
             reason = f"{state.task.name} is running: wait for it or press Stop"
         elif action.needs in ("bottle", "tags") and not state.calibration.calibrated:
             reason = "not calibrated: press Calibrate first (clear the table)"
+        elif action.needs in ("bottle", "tags") and state.drift.drifted:
+            reason = state.drift.refusal()
         elif action.needs == "bottle" and not state.bottles():
             reason = "no bottle tracked (is object detection on?)"
         elif action.needs == "tags" and not state.detectors.get("tags", False):

@@ -309,6 +309,17 @@ function renderCalibration(cal) {
   setText($('cal-residual'), isNum(cal.residual_mm) ? cal.residual_mm.toFixed(2) + ' mm' : '—');
   const off = cal.joint_offsets_deg;
   setText($('cal-offsets'), Array.isArray(off) ? off.map((v) => fix(v, 2)).join('  ') + ' deg' : 'none');
+  // Has the camera moved since calibration? The gripper tag as seen against the encoders.
+  const d = cal.drift || {};
+  setText(
+    $('cal-drift'),
+    isNum(d.translation_mm)
+      ? `${fix(d.translation_mm, 1)} mm, ${fix(d.rotation_deg, 2)} deg (limit ${fix(d.threshold_mm, 0)} mm, ${fix(d.threshold_deg, 1)} deg)`
+      : 'not checked yet (show the gripper tag)'
+  );
+  const warn = $('cal-drifted');
+  warn.hidden = !d.drifted;
+  setText(warn, d.drifted ? `The camera has moved since calibration (${fix(d.translation_mm, 0)} mm, ${fix(d.rotation_deg, 1)} deg): recalibrate (Calibrate) or put it back.` : '');
 }
 
 // ---------------------------------------------------------------- render: threads, tracks, tags
