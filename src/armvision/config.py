@@ -522,7 +522,7 @@ class AnalyzeConfig:
 
     frames: Annotated[Int, Field(ge=1, le=100)] = 8
     min_confidence: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
-    min_box_height_px: Annotated[Float, Field(ge=0.0, le=1080.0)] = 60.0  # the tallest image
+    min_box_height_px: Annotated[Float, Field(ge=0.0, le=10000.0)] = 60.0  # above 1080: always pick
     allow_pick: Bool = True
     present_distance: Annotated[Float, Field(gt=0.0, le=3.0)] = 0.55
     timeout_s: Annotated[Float, Field(gt=0.0, le=3600.0)] = 60.0
