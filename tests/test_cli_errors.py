@@ -138,3 +138,12 @@ def test_out_that_is_a_file(capsys, tmp_path):
     existing.write_text("")
     line = fails(capsys, "perceive", "--out", str(existing))
     assert "--out" in line and str(existing) in line
+
+
+def test_calibrate_checks_its_output_folder_before_moving_the_arm(capsys, tmp_path):
+    start = time.monotonic()
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    line = fails(capsys, "calibrate", "--sim", "--out", str(blocker / "calibration.json"))
+    assert "the calibration's folder" in line and "cannot write there" in line
+    assert time.monotonic() - start < 5.0  # refused before the (30 s) sampling started

@@ -371,12 +371,20 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
         config = dataclasses.replace(
             config, calibration=dataclasses.replace(config.calibration, method=args.method)
         )
+    out = Path(
+        args.out
+        or (
+            config.calibration.file if args.real else _sim_calibration_path(config.calibration.file)
+        )
+    )
+    writable_dir(
+        out.parent if str(out.parent) else ".", "the calibration's folder"
+    )  # before moving
     progress = ProgressBar("calibrating")
     if args.real:
         from armvision.camera.realsense import RealSenseCamera
         from armvision.robot.interbotix import InterbotixArm
 
-        out = Path(args.out or config.calibration.file)
         arm = InterbotixArm.from_config(config.robot)
         with RealSenseCamera.from_config(config.camera) as camera:
             arm.go_to_home_pose()
@@ -387,7 +395,6 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
                 arm.go_to_sleep_pose()
             stored = store.record(result, source="real")
     else:
-        out = Path(args.out) if args.out else _sim_calibration_path(config.calibration.file)
         result = calibrate_sim(config, args.seed, progress=progress)
         stored = store.record(result, source=f"simulation, seed {args.seed}")
     quality = check_quality(
@@ -570,7 +577,7 @@ def build_parser() -> argparse.ArgumentParser:
     where = calibrate.add_mutually_exclusive_group()
     where.add_argument("--sim", action="store_true", help="a simulated workspace (default)")
     where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
-    calibrate.add_argument("--seed", type=int, default=0, help="scene seed (simulation)")
+    calibrate.add_argument("--seed", type=seed, default=0, help="scene seed (simulation)")
     calibrate.add_argument(
         "--out",
         metavar="PATH",
