@@ -357,7 +357,7 @@ class CalibrationConfig:
     # disagreement over drift_mm or drift_deg (median over drift_window_s, at least
     # drift_min_samples detections) held for drift_persist_s marks the calibration drifted.
     drift_mm: Annotated[Float, Field(gt=0.0, le=1000.0)] = 8.0
-    drift_deg: Annotated[Float, Field(gt=0.0, le=180.0)] = 1.0
+    drift_deg: Annotated[Float, Field(gt=0.0, le=180.0)] = 1.5
     drift_window_s: Seconds = 2.0
     drift_min_samples: Annotated[Int, Field(ge=1, le=1000)] = 10
     drift_persist_s: Annotated[Float, Field(ge=0.0, le=600.0)] = 1.0

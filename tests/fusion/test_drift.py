@@ -11,16 +11,19 @@ from scipy.spatial.transform import Rotation
 
 from armvision.calibration.sampling import facing_pose
 from armvision.config import CalibrationConfig, Config
-from armvision.fusion.drift import DriftMonitor, rotation_reference
+from armvision.fusion.drift import DriftMonitor, facing, rotation_reference
 from armvision.geometry import inv_T, make_T
 from armvision.perception.tags import tag_mount
-from armvision.robot.kinematics import fk
+from armvision.robot.kinematics import fk, ik
+from armvision.sim.world import camera_pose_from_placement
 
-T_BASE_CAM = make_T(
-    Rotation.from_euler("xyz", [-120, 0, 90], degrees=True).as_matrix(), [1, 0, 0.45]
-)
+T_BASE_CAM = camera_pose_from_placement(1.0, 0.0, 0.45, math.radians(30.0))
 T_EE_TAG = tag_mount((-0.1, 0.0, 0.03))
-Q = np.array([0.1, -0.3, 0.4, 0.0, 0.5, 0.0])
+OFFSET = np.array([-0.1, 0.0, 0.03])
+TAG_AT = np.array([0.35, 0.0, 0.25])
+# Joints that show the tag face-on to the camera (its orientation counts only then).
+Q, _ok = ik(facing_pose(TAG_AT, T_BASE_CAM[:3, 3], OFFSET))
+assert _ok
 
 
 def _seen(q, T_base_cam_true):
@@ -56,18 +59,18 @@ def test_agreement_is_zero_and_a_known_shift_is_measured() -> None:
 
 def test_a_turn_shows_in_the_rotation_and_small_errors_are_absorbed() -> None:
     cfg = CalibrationConfig()
-    turned = T_BASE_CAM @ make_T(Rotation.from_euler("z", 1.5, degrees=True).as_matrix(), [0, 0, 0])
+    turned = T_BASE_CAM @ make_T(Rotation.from_euler("z", 2.5, degrees=True).as_matrix(), [0, 0, 0])
     # Against a calibration whose own samples agreed (zero reference): the turn is seen.
     monitor = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG, np.zeros(3))
     _feed(monitor, turned, 0.0, 3.0)
-    assert monitor.status.rotation_deg == pytest.approx(1.5, abs=1e-6)
+    assert monitor.status.rotation_deg == pytest.approx(2.5, abs=1e-6)
     assert monitor.status.drifted
     # Without a reference (a bare transform) the first sightings set it; a turn after is seen.
     learner = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG)
     t = _feed(learner, T_BASE_CAM @ make_T(np.eye(3), [0, 0, 0]), 0.0, 2.0)
     assert learner.status.rotation_deg == pytest.approx(0.0, abs=1e-6)
     _feed(learner, turned, t, 3.0)
-    assert learner.status.drifted and learner.status.rotation_deg == pytest.approx(1.5, abs=1e-6)
+    assert learner.status.drifted and learner.status.rotation_deg == pytest.approx(2.5, abs=1e-6)
     nudged = T_BASE_CAM.copy()
     nudged[:3, 3] += [0.004, 0.0, 0.0]  # 4 mm: the filter's job, not an alarm
     quiet = DriftMonitor(cfg, T_BASE_CAM, T_EE_TAG)
@@ -98,7 +101,7 @@ def test_fast_motion_few_samples_and_outliers_do_not_alarm() -> None:
 def test_the_rotation_reference_removes_what_the_calibration_already_saw() -> None:
     bias = make_T(Rotation.from_euler("x", 0.8, degrees=True).as_matrix(), [0, 0, 0])
     rng = np.random.default_rng(1)
-    qs = [Q + rng.normal(0, 0.2, 6) for _ in range(12)]
+    qs = [Q + rng.normal(0, 0.05, 6) for _ in range(12)]
     # Every sighting carries the same 0.8 deg orientation error in the camera's frame (what a
     # calibration fitted to tag positions keeps of the camera's rotation).
     samples = [(q, bias @ _seen(q, T_BASE_CAM)) for q in qs]
@@ -109,6 +112,19 @@ def test_the_rotation_reference_removes_what_the_calibration_already_saw() -> No
         monitor.observe(k / 30, Q, bias @ _seen(Q, T_BASE_CAM))
     assert monitor.status.rotation_deg == pytest.approx(0.0, abs=1e-6)
     assert rotation_reference(T_BASE_CAM, T_EE_TAG, []) is None
+
+
+def test_an_oblique_tag_counts_for_its_position_only() -> None:
+    """Seen more than 40 degrees off face-on, a tag's orientation is not trusted."""
+    tilt = (np.array([0.0, 0.0, 1.0]), math.radians(60.0))  # turned 60 deg to the side
+    q_oblique, ok = ik(facing_pose(TAG_AT, T_BASE_CAM[:3, 3], OFFSET, tilt=tilt))
+    assert ok and not facing(_seen(q_oblique, T_BASE_CAM)) and facing(_seen(Q, T_BASE_CAM))
+    turned = T_BASE_CAM @ make_T(Rotation.from_euler("z", 3.0, degrees=True).as_matrix(), [0, 0, 0])
+    monitor = DriftMonitor(CalibrationConfig(), T_BASE_CAM, T_EE_TAG, np.zeros(3))
+    _feed(monitor, turned, 0.0, 3.0, q=q_oblique)
+    assert monitor.status.rotation_deg is None and monitor.status.measured
+    seen = [(q_oblique, _seen(q_oblique, T_BASE_CAM))]
+    assert rotation_reference(T_BASE_CAM, T_EE_TAG, seen) is None
 
 
 def test_an_uncalibrated_monitor_never_alarms() -> None:

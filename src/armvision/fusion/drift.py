@@ -60,7 +60,7 @@ class DriftStatus:
     since: float | None = None
     checked_at: float | None = None
     threshold_mm: float = 10.0
-    threshold_deg: float = 1.0
+    threshold_deg: float = 1.5
 
     @property
     def measured(self) -> bool:
@@ -94,6 +94,18 @@ class DriftStatus:
         }
 
 
+#: The tag's orientation counts only from sightings within this angle of facing the camera:
+#: seen more obliquely, a tag's measured orientation is off by degrees (its position is not).
+MAX_VIEW_ANGLE_DEG = 40.0
+
+
+def facing(T_cam_tag: ArrayLike) -> bool:
+    """Does the tag face the camera within :data:`MAX_VIEW_ANGLE_DEG`?"""
+    T = np.asarray(T_cam_tag, dtype=float)
+    ray = T[:3, 3] / max(float(np.linalg.norm(T[:3, 3])), 1e-9)
+    return abs(float(T[:3, 2] @ ray)) >= math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
+
+
 def _disagreement(
     T_base_cam: np.ndarray, T_ee_tag: np.ndarray, q: ArrayLike, T_cam_tag: ArrayLike, model
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -115,6 +127,7 @@ def rotation_reference(
     vectors = [
         Rotation.from_matrix(_disagreement(T_base_cam, T_ee_tag, q, T, model)[1]).as_rotvec()
         for q, T in samples
+        if facing(T)
     ]
     if not vectors:
         return None
@@ -148,7 +161,7 @@ class DriftMonitor:
             else Rotation.from_rotvec(np.asarray(rotation_reference, dtype=float)).as_matrix()
         )
         self.model = model
-        self._window: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._window: deque[tuple[float, np.ndarray, np.ndarray | None]] = deque()
         self._over_since: float | None = None  # exceeding since (while not drifted)
         self._under_since: float | None = None  # back within since (while drifted)
         self.status = DriftStatus(threshold_mm=config.drift_mm, threshold_deg=config.drift_deg)
@@ -173,7 +186,7 @@ class DriftMonitor:
             return self.status
         cfg = self.config
         window = self._window
-        window.append((t, dp, dr))
+        window.append((t, dp, dr if facing(T_cam_tag) else None))
         while window and window[0][0] < t - cfg.drift_window_s:
             window.popleft()
         n = len(window)
@@ -181,12 +194,17 @@ class DriftMonitor:
             self.status = replace(self.status, samples=n, checked_at=t)
             return self.status
         translation_mm = 1000.0 * float(np.linalg.norm(np.median([w[1] for w in window], axis=0)))
-        R_median = Rotation.from_rotvec(np.median([w[2] for w in window], axis=0)).as_matrix()
-        if self.R_reference is None:
-            self.R_reference = R_median
-        rotation = Rotation.from_matrix(R_median @ self.R_reference.T).as_rotvec()
-        rotation_deg = math.degrees(float(np.linalg.norm(rotation)))
-        over = translation_mm > cfg.drift_mm or rotation_deg > cfg.drift_deg
+        rotations = [w[2] for w in window if w[2] is not None]
+        rotation_deg = None
+        if len(rotations) >= cfg.drift_min_samples:
+            R_median = Rotation.from_rotvec(np.median(rotations, axis=0)).as_matrix()
+            if self.R_reference is None:
+                self.R_reference = R_median
+            rotation = Rotation.from_matrix(R_median @ self.R_reference.T).as_rotvec()
+            rotation_deg = math.degrees(float(np.linalg.norm(rotation)))
+        over = translation_mm > cfg.drift_mm or (
+            rotation_deg is not None and rotation_deg > cfg.drift_deg
+        )
         drifted, since = self.status.drifted, self.status.since
         if not drifted:
             self._under_since = None
