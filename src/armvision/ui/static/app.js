@@ -314,7 +314,10 @@ function renderCalibration(cal) {
   setText(
     $('cal-drift'),
     isNum(d.translation_mm)
-      ? `${fix(d.translation_mm, 1)} mm, ${fix(d.rotation_deg, 2)} deg (limit ${fix(d.threshold_mm, 0)} mm, ${fix(d.threshold_deg, 1)} deg)`
+      ? `${fix(d.translation_mm, 1)} mm (limit ${fix(d.threshold_mm, 0)}), ` +
+          (isNum(d.rotation_deg)
+            ? `${fix(d.rotation_deg, 2)} deg (limit ${fix(d.threshold_deg, 1)})`
+            : 'turn not checked (the tag is not face-on)')
       : 'not checked yet (show the gripper tag)'
   );
   const warn = $('cal-drifted');
