@@ -56,28 +56,28 @@ def int_in(low: int, high: int, what: str) -> Callable[[str], int]:
     return parse
 
 
-def seconds(text: str) -> float:
-    """A duration argument: a finite number of seconds above 0, at most a day."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and 0.0 < value <= 86400.0):
-        raise argparse.ArgumentTypeError(
-            f"must be a duration in seconds above 0 and at most 86400, not {text!r}"
-        )
-    return value
+def float_in(low: float, high: float, what: str, above_low: bool = False) -> Callable[[str], float]:
+    """A finite number argument in ``low``..``high`` (above ``low`` with ``above_low``);
+    ``what`` says what it is, with its range, in the error."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        inside = low < value if above_low else low <= value
+        if not (math.isfinite(value) and inside and value <= high):
+            raise argparse.ArgumentTypeError(f"must be {what}, not {text!r}")
+        return value
+
+    parse.__name__ = what
+    return parse
 
 
-def millimetres(text: str) -> float:
-    """A distance argument: finite millimetres from 0 to 1000."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
-        raise argparse.ArgumentTypeError(f"must be millimetres from 0 to 1000, not {text!r}")
-    return value
+#: A duration: seconds above 0, at most a day.
+seconds = float_in(0.0, 86400.0, "a duration in seconds above 0 and at most 86400", True)
+#: A distance: millimetres from 0 to 1000.
+millimetres = float_in(0.0, 1000.0, "millimetres from 0 to 1000")
 
 
 def seeds(text: str) -> str:

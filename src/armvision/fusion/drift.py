@@ -40,6 +40,8 @@ from scipy.spatial.transform import Rotation
 from armvision.config import CalibrationConfig
 from armvision.robot.kinematics import VX300S, ArmModel, fk
 
+_DEFAULTS = CalibrationConfig()
+
 #: End-effector speed above which a sample is not used, m/s.
 MAX_SPEED_MPS = 0.05
 
@@ -59,8 +61,8 @@ class DriftStatus:
     samples: int = 0
     since: float | None = None
     checked_at: float | None = None
-    threshold_mm: float = 10.0
-    threshold_deg: float = 1.5
+    threshold_mm: float = _DEFAULTS.drift_mm
+    threshold_deg: float = _DEFAULTS.drift_deg
 
     @property
     def measured(self) -> bool:
@@ -166,13 +168,6 @@ class DriftMonitor:
         self._under_since: float | None = None  # back within since (while drifted)
         self.status = DriftStatus(threshold_mm=config.drift_mm, threshold_deg=config.drift_deg)
 
-    def disagreement(self, q: ArrayLike, T_cam_tag: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """(position difference m, rotation vector rad), camera minus encoders, base frame; the
-        rotation relative to the one seen at calibration."""
-        dp, R = _disagreement(self.T_base_cam, self.T_ee_tag, q, T_cam_tag, self.model)
-        reference = np.eye(3) if self.R_reference is None else self.R_reference
-        return dp, Rotation.from_matrix(R @ reference.T).as_rotvec()
-
     def observe(
         self, t: float, q: ArrayLike, T_cam_tag: ArrayLike, speed_mps: float = 0.0
     ) -> DriftStatus:
@@ -181,12 +176,13 @@ class DriftMonitor:
         if not self.active or not speed_mps <= MAX_SPEED_MPS or not math.isfinite(t):
             return self.status
         dp, R = _disagreement(self.T_base_cam, self.T_ee_tag, q, T_cam_tag, self.model)
-        dr = Rotation.from_matrix(R).as_rotvec()  # raw: the reference is applied below
-        if not (np.all(np.isfinite(dp)) and np.all(np.isfinite(dr))):
+        # Raw (the reference is applied to the window's median), and only from a face-on tag.
+        dr = Rotation.from_matrix(R).as_rotvec() if facing(T_cam_tag) else None
+        if not (np.all(np.isfinite(dp)) and (dr is None or np.all(np.isfinite(dr)))):
             return self.status
         cfg = self.config
         window = self._window
-        window.append((t, dp, dr if facing(T_cam_tag) else None))
+        window.append((t, dp, dr))
         while window and window[0][0] < t - cfg.drift_window_s:
             window.popleft()
         n = len(window)

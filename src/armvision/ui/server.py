@@ -453,6 +453,10 @@ async def read_json(request: Request) -> Any:
         ) from None
 
 
+def _no_action(name: str) -> RequestError:
+    return RequestError(404, f"no action {_short(name)}; the actions are {', '.join(ACTIONS)}")
+
+
 def _action_params(name: str, action: Action, body: Any) -> ActionBody:
     """The parameters of action ``name`` from a request body (RequestError 400 if wrong)."""
     takes = f"it takes {', '.join(sorted(action.params))}" if action.params else "it takes none"
@@ -699,9 +703,7 @@ class OperatorUI:
         or ids that name nothing (decided first), 409 not now (busy, or what it needs)."""
         action = ACTIONS.get(name)
         if action is None:
-            raise RequestError(
-                404, f"no action {_short(name)}; the actions are {', '.join(ACTIONS)}"
-            )
+            raise _no_action(name)
         params = _action_params(name, action, body)
         with self._submit:
             state = self.system.snapshot()
@@ -901,9 +903,7 @@ class OperatorUI:
         @app.post("/api/actions/{name}", status_code=202)
         async def action(name: str, request: Request) -> dict[str, Any]:
             if name not in ACTIONS:  # before the body: the name is the mistake
-                raise RequestError(
-                    404, f"no action {_short(name)}; the actions are {', '.join(ACTIONS)}"
-                )
+                raise _no_action(name)
             body = await read_json(request)
             task_id = await run_in_threadpool(ui.start_action, name, body)
             return {"task_id": task_id, "name": name}
