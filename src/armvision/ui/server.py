@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import ipaddress
 import json
 import logging
@@ -104,6 +105,7 @@ def _is_ip(host: str) -> bool:
     return True
 
 
+@functools.cache  # the full name may need a DNS look-up: once per process, not per bind
 def machine_names() -> frozenset[str]:
     """This machine's own names: its host name, ``<name>.local`` and its full name."""
     name = socket.gethostname().lower()
