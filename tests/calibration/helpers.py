@@ -10,8 +10,8 @@ from armvision.calibration.sampling import Sample, SamplingResult
 from armvision.camera.frames import Intrinsics
 from armvision.config import TagConfig
 from armvision.geometry import inv_T, make_T
-from armvision.perception.tags import tag_mount
 from armvision.robot.kinematics import fk
+from armvision.robot.tag_mount import tag_mount
 
 T_BASE_CAM = make_T(
     Rotation.from_euler("zyx", [170, 25, -100], degrees=True).as_matrix(), [1.05, -0.2, 0.48]

@@ -16,7 +16,7 @@ from armvision.calibration.sampling import PlannedPose, Sampler, circular_mean, 
 from armvision.config import CalibrationConfig, Config, SimConfig, TagConfig
 from armvision.errors import CalibrationError
 from armvision.geometry import make_T, pose_error
-from armvision.perception.tags import R_EE_TAG
+from armvision.robot.tag_mount import R_EE_TAG
 from armvision.sim.world import camera_pose_from_placement
 
 # Encoder noise but no zero-offset bias: a waist offset is indistinguishable from a turn of
@@ -137,7 +137,7 @@ def test_circular_mean_wraps():
 
 def test_facing_pose_puts_the_tag_centre_in_place_facing_the_camera():
     from armvision.calibration.sampling import facing_pose
-    from armvision.perception.tags import tag_mount
+    from armvision.robot.tag_mount import tag_mount
 
     p_tag, p_cam = np.array([0.3, -0.25, 0.15]), np.array([1.1, 0.3, 0.5])
     for spin in (0.0, 0.7, -1.2):
@@ -207,8 +207,8 @@ def test_a_tag_mount_far_from_the_configured_offset_is_refused(result):
 def test_samples_bunched_in_one_place_are_refused_for_their_spread(result):
     """Exact samples around one real pose (joints within 0.03 rad): a tiny residual, but
     nothing to fix the rotation by."""
-    from armvision.perception.tags import tag_mount
     from armvision.robot.kinematics import fk
+    from armvision.robot.tag_mount import tag_mount
 
     rng = np.random.default_rng(0)
     base = result.samples[0]

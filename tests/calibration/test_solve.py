@@ -12,7 +12,7 @@ from tests.calibration.helpers import OFFSET, T_BASE_CAM, joint_samples, samples
 from armvision.calibration.solve import DEFAULT_METHOD, METHODS, solve, solve_points, tag_points
 from armvision.errors import CalibrationError
 from armvision.geometry import inv_T, make_T, pose_error
-from armvision.perception.tags import tag_mount
+from armvision.robot.tag_mount import tag_mount
 
 
 def naive_svd(p_cam, p_base):

@@ -13,8 +13,8 @@ from armvision.calibration.sampling import facing_pose
 from armvision.config import CalibrationConfig, Config
 from armvision.fusion.drift import DriftMonitor, facing, rotation_reference
 from armvision.geometry import inv_T, make_T
-from armvision.perception.tags import tag_mount
 from armvision.robot.kinematics import fk, ik
+from armvision.robot.tag_mount import tag_mount
 from armvision.sim.world import camera_pose_from_placement
 
 T_BASE_CAM = camera_pose_from_placement(1.0, 0.0, 0.45, math.radians(30.0))

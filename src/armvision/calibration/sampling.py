@@ -36,9 +36,10 @@ from armvision.camera.base import Camera
 from armvision.config import CalibrationConfig, TagConfig
 from armvision.errors import CalibrationError
 from armvision.geometry import inv_T, make_T, rot_y, rot_z
-from armvision.perception.tags import TagDetector, tag_mount
+from armvision.perception.tags import TagDetector
 from armvision.robot.base import Arm
 from armvision.robot.kinematics import VX300S, fk, ik
+from armvision.robot.tag_mount import tag_mount
 
 log = logging.getLogger(__name__)
 Array = NDArray[np.float64]

@@ -2,7 +2,7 @@
 
 Each sample pairs ``T_base_ee`` (forward kinematics of the joint readings) with ``T_cam_tag``
 (the tag's pose as the camera measured it). The tag sits at ``offset_ee`` in the ee frame
-(rotation :data:`armvision.perception.tags.R_EE_TAG`), so every sample gives one point twice:
+(rotation :data:`armvision.robot.tag_mount.R_EE_TAG`), so every sample gives one point twice:
 ``p_cam = T_cam_tag[:3, 3]`` and ``p_base = T_base_ee @ offset_ee``, related by the rigid
 ``p_base = T_base_cam @ p_cam``.
 

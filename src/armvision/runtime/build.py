@@ -16,7 +16,7 @@ from armvision.calibration.store import StoredCalibration, load
 from armvision.config import Config
 from armvision.errors import CalibrationError
 from armvision.fusion.drift import rotation_reference
-from armvision.perception.tags import tag_mount
+from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.state import CalibrationStatus
 from armvision.runtime.system import System
 

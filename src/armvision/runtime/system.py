@@ -52,8 +52,9 @@ from armvision.fusion.kalman import DEFAULT_FOCAL_PX
 from armvision.fusion.loop import FusionLoop
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel, LiquidLevelMeter
 from armvision.perception.objects import GeometricDetector
-from armvision.perception.tags import TagDetector, tag_mount
+from armvision.perception.tags import TagDetector
 from armvision.robot.base import Arm
+from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.state import (
     CalibrationStatus,
     HealthMeter,

@@ -33,8 +33,8 @@ from scipy.spatial.transform import Rotation
 from armvision.config import Config, SimConfig
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, make_T, rot_z
-from armvision.perception.tags import R_EE_TAG, tag_mount
 from armvision.robot.kinematics import VX300S
+from armvision.robot.tag_mount import R_EE_TAG, tag_mount
 from armvision.sim import assets
 from armvision.sim._mujoco import mujoco
 
