@@ -34,9 +34,11 @@ test: setup
 bench: setup
 	$(BIN)/python benchmarks/run_all.py
 
+# Style (ruff), the import layers (import-linter, contracts in pyproject.toml) and types (mypy).
 lint: setup
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache

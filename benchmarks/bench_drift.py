@@ -26,11 +26,11 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from armvision.bench.system import calibrate_empty_table, sim_system
 from armvision.calibration.sampling import facing_pose
 from armvision.config import Config, load_config
 from armvision.errors import ArmvisionError
 from armvision.geometry import make_T
-from armvision.runtime.build import calibrate_empty_table, sim_system
 from armvision.sim.world import SimWorld
 
 OVERRIDES: list[str] = []  # --set section.key=value, for trying other thresholds

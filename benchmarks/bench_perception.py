@@ -15,12 +15,12 @@ import time
 import cv2
 import numpy as np
 
-from armvision.camera.sim import SimCamera
 from armvision.config import Config
 from armvision.perception.liquid import LiquidLevelMeter
 from armvision.perception.objects import GeometricDetector
 from armvision.perception.tags import TagDetector, pupil_detector
-from armvision.robot.sim import SimArm
+from armvision.sim.arm import SimArm
+from armvision.sim.camera import SimCamera
 from armvision.sim.world import SimWorld
 
 

@@ -53,8 +53,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from websockets.sync.client import connect
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
-from armvision.runtime.build import sim_system
 from armvision.sim.world import bench_scene
 from armvision.ui.server import ACTIONS, OperatorUI, Server, listen
 

@@ -16,9 +16,9 @@ import argparse
 import os
 import time
 
-from armvision.camera.sim import SimCamera, realsense_depth_model
 from armvision.config import Config, SimConfig
-from armvision.robot.sim import SimArm
+from armvision.sim.arm import SimArm
+from armvision.sim.camera import SimCamera, realsense_depth_model
 from armvision.sim.world import SimWorld
 
 PHYSICS_TARGET_X = 20.0

@@ -27,8 +27,8 @@ import httpx
 import numpy as np
 from websockets.sync.client import connect
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
-from armvision.runtime.build import sim_system
 from armvision.sim.world import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen
 

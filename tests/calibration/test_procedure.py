@@ -10,7 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from armvision.calibration.procedure import calibrate_sim, solve_all
+from armvision.bench.system import calibrate_sim
+from armvision.calibration.procedure import solve_all
 from armvision.calibration.quality import assess, check_quality
 from armvision.calibration.sampling import PlannedPose, Sampler, circular_mean, phase1_plan
 from armvision.config import CalibrationConfig, Config, SimConfig, TagConfig
@@ -73,8 +74,8 @@ def test_a_tag_the_camera_never_sees_is_a_clear_error():
     config = dataclasses.replace(CONFIG, tag=dataclasses.replace(CONFIG.tag, id=5))
     # The simulation mounts tag 96; the calibration looks for 5.
     world_config = CONFIG
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     with SimWorld(world_config, 0) as world, SimCamera(world) as camera:
@@ -84,8 +85,8 @@ def test_a_tag_the_camera_never_sees_is_a_clear_error():
 
 
 def test_an_unreachable_pose_is_skipped_with_a_log_line(caplog):
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     far = PlannedPose(2, 0.0, 0.2, make_T(R_EE_TAG, [1.2, 0.0, 0.2]))
@@ -104,8 +105,8 @@ def test_an_unreachable_pose_is_skipped_with_a_log_line(caplog):
 
 def test_too_few_samples_is_an_error_that_lists_what_went_wrong():
     cal = CalibrationConfig(phase2_azimuths=1, phase2_heights=(0.2,), extra_poses=0, min_samples=12)
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     with SimWorld(CONFIG, 0) as world, SimCamera(world) as camera:

@@ -13,6 +13,7 @@ import pytest
 from numpy.typing import NDArray
 
 from armvision.camera.frames import Intrinsics
+from armvision.camera.realsense import intrinsics_to_rs
 
 rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 is not installed")
 
@@ -23,7 +24,7 @@ def _video_stream(stream: Any, fmt: Any, bpp: int, intr: Intrinsics, uid: int) -
     vs = rs.video_stream()
     vs.type, vs.index, vs.uid = stream, 0, uid
     vs.width, vs.height, vs.fps, vs.bpp, vs.fmt = intr.width, intr.height, FPS, bpp, fmt
-    vs.intrinsics = intr.to_rs()
+    vs.intrinsics = intrinsics_to_rs(intr)
     return vs
 
 

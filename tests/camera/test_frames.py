@@ -18,6 +18,7 @@ from armvision.camera.frames import (
     project,
     undistort,
 )
+from armvision.camera.realsense import intrinsics_to_rs
 
 rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 is not installed")
 
@@ -155,7 +156,7 @@ def test_unknown_model_is_refused() -> None:
 
 def test_rs_intrinsics_round_trip() -> None:
     intr, rs_intr = rs_intrinsics("inverse_brown_conrady")
-    back = intr.to_rs()
+    back = intrinsics_to_rs(intr)
     assert back.model == rs.distortion.inverse_brown_conrady
     assert Intrinsics.from_rs(back) == intr
     assert (back.fx, back.ppy, list(back.coeffs)) == (rs_intr.fx, rs_intr.ppy, rs_intr.coeffs)

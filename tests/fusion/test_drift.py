@@ -141,7 +141,7 @@ def test_an_uncalibrated_monitor_never_alarms() -> None:
 @pytest.fixture(scope="module")
 def calibrated():
     """A real gripper-tag calibration (empty table), then a bench with a bottle on it."""
-    from armvision.runtime.build import calibrate_empty_table
+    from armvision.bench.system import calibrate_empty_table
 
     config = Config()
     status, _ = calibrate_empty_table(config, seed=2)
@@ -179,7 +179,7 @@ def _time_to_drift(system, limit_s: float) -> float | None:
     ids=["2cm", "1deg"],
 )
 def test_a_camera_moved_after_calibration_is_reported_and_grab_refuses(calibrated, move) -> None:
-    from armvision.runtime.build import sim_system
+    from armvision.bench.system import sim_system
     from armvision.sim.world import bench_scene
     from armvision.tasks.grab import grab
 

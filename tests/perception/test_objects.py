@@ -131,8 +131,8 @@ def test_sizes_and_boxes_match_the_truth(evaluation: dict) -> None:
 @pytest.fixture(scope="module")
 def arm_world():
     """An empty table with the arm reaching down into the camera's view."""
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     world = SimWorld(Config(sim=SimConfig(min_objects=0, max_objects=0)), seed=3)

@@ -10,12 +10,12 @@ import time
 import numpy as np
 import pytest
 
+from armvision.bench.system import sim_system, sim_truth_calibration
 from armvision.config import Config
 from armvision.errors import ArmvisionError, HardwareError
 from armvision.perception.objects import Detection, GeometricDetector
-from armvision.robot.sim import SimArm
-from armvision.runtime.build import sim_system, sim_truth_calibration
 from armvision.runtime.system import System
+from armvision.sim.arm import SimArm
 from armvision.sim.world import SimWorld, bench_scene
 from armvision.tasks.basic import home
 

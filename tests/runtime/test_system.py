@@ -11,9 +11,9 @@ import time
 import numpy as np
 import pytest
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ArmvisionError
-from armvision.runtime.build import sim_system
 from armvision.runtime.system import TaskError
 from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.grab import grab
@@ -222,11 +222,11 @@ def test_all_threads_in_realtime_for_30_s_with_tasks_and_stop() -> None:
 
 def test_a_camera_that_knows_its_intrinsics_only_once_started() -> None:
     """A RealSense has no intrinsics before start(); the system still builds (real_system)."""
+    from armvision.bench.system import sim_truth_calibration
     from armvision.errors import HardwareError
     from armvision.fusion.kalman import DEFAULT_FOCAL_PX
-    from armvision.robot.sim import SimArm
-    from armvision.runtime.build import sim_truth_calibration
     from armvision.runtime.system import System
+    from armvision.sim.arm import SimArm
     from armvision.sim.world import SimWorld
 
     class Unstarted:

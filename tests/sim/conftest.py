@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 from tests.sim.helpers import config_with
 
-from armvision.camera.sim import SimCamera
+from armvision.sim.camera import SimCamera
 from armvision.sim.world import SimWorld
 
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from tests.sim.helpers import config_with
 
-from armvision.camera.sim import SimCamera
 from armvision.config import Config
 from armvision.geometry import make_T, pose_error, rpy_to_R
 from armvision.robot.base import Arm
 from armvision.robot.kinematics import VX300S, fk
-from armvision.robot.sim import SimArm, quantize_encoder
+from armvision.sim.arm import SimArm, quantize_encoder
+from armvision.sim.camera import SimCamera
 from armvision.sim.world import ObjectSpec, SceneSpec, SimWorld, random_camera_pose
 
 

@@ -10,15 +10,15 @@ import pytest
 
 from armvision.camera.base import Camera
 from armvision.camera.frames import RGBDFrame, project
-from armvision.camera.sim import (
-    SimCamera,
-    depth_rms_error,
-    realsense_depth_model,
-)
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, transform_points
 from armvision.perception.tags import pupil_detector
 from armvision.sim._mujoco import mujoco
+from armvision.sim.camera import (
+    SimCamera,
+    depth_rms_error,
+    realsense_depth_model,
+)
 from armvision.sim.world import SimWorld, camera_pose_from_placement
 
 #: (distance m, azimuth deg, height m, pitch deg): the paper's set-up and three others.

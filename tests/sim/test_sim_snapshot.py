@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from armvision.bench.snapshot import false_colour_depth, write_snapshot
 from armvision.config import Config
 from armvision.errors import SimulationError
 from armvision.robot.kinematics import VX300S, fk
-from armvision.sim.snapshot import false_colour_depth, write_snapshot
 from armvision.sim.world import generate_scene
 
 

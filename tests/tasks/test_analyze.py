@@ -17,13 +17,13 @@ import threading
 import numpy as np
 import pytest
 
+from armvision.bench.system import sim_system
 from armvision.camera.frames import Intrinsics
 from armvision.config import Config
 from armvision.eval.liquid import true_box_and_mask
 from armvision.geometry import inv_T, make_T
 from armvision.perception.liquid import LiquidLevelMeter
 from armvision.robot.kinematics import VX300S
-from armvision.runtime.build import sim_system
 from armvision.runtime.system import System, TaskContext, TaskStopped
 from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.analyze import (

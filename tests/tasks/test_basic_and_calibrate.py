@@ -8,12 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from armvision.bench.system import calibrate_empty_table, sim_system
 from armvision.config import Config
 from armvision.errors import CalibrationError
 from armvision.eval.fusion import perturbed_calibration
 from armvision.geometry import pose_error
 from armvision.robot.kinematics import VX300S
-from armvision.runtime.build import calibrate_empty_table, load_calibration, sim_system
+from armvision.runtime.build import load_calibration
 from armvision.runtime.state import CalibrationStatus
 from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks import basic

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ConfigError
 from armvision.eval.follow import evaluate_follow
 from armvision.geometry import make_T
 from armvision.robot.kinematics import VX300S, fk
-from armvision.runtime.build import sim_system
 from armvision.tasks.follow import (
     ServoGains,
     TargetEstimator,

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import httpx
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
-from armvision.runtime.build import sim_system
 from armvision.runtime.system import System
 from armvision.sim.world import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen

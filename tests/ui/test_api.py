@@ -18,8 +18,9 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
-from armvision.runtime.build import sim_system, uncalibrated
+from armvision.runtime.build import uncalibrated
 from armvision.sim.world import bench_scene
 from armvision.ui.server import ACTIONS, TOKEN_ENV, action_states, resolve_token
 

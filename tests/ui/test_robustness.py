@@ -27,9 +27,9 @@ with warnings.catch_warnings():  # Starlette would rather have httpx2; httpx is 
     from starlette.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
+from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ArmvisionError
-from armvision.runtime.build import sim_system
 from armvision.runtime.system import DETECTORS, System
 from armvision.sim.world import bench_scene
 from armvision.ui.server import ACTIONS, TOKEN_ENV, OperatorUI, resolve_token

@@ -7,7 +7,6 @@ how ``armvision calibrate --sim`` and ``armvision eval calibration`` measure the
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -108,47 +107,3 @@ def pose_errors(T_estimate: Array, T_true: Array) -> dict[str, float]:
     """Translation (mm) and rotation (deg) error of an estimated camera pose."""
     dp, dr = pose_error(T_estimate, T_true)
     return {"translation_error_mm": 1000.0 * float(dp), "rotation_error_deg": math.degrees(dr)}
-
-
-def calibrate_sim(
-    config: Config,
-    seed: int,
-    T_base_cam: Array | None = None,
-    calibration_tag: TagConfig | None = None,
-    progress: Progress | None = None,
-) -> CalibrationResult:
-    """Calibrate in a fresh lockstep simulation of ``seed`` and compare with the truth.
-
-    ``T_base_cam`` places the simulated camera (default: the configured placement);
-    ``calibration_tag`` is the tag the calibration is *told* about, when it should differ
-    from the one the simulation mounts (``config.tag``), e.g. a mis-measured offset.
-    """
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
-    from armvision.sim.world import SimWorld
-
-    told = config if calibration_tag is None else dataclasses.replace(config, tag=calibration_tag)
-    with SimWorld(config, seed) as world:
-        if T_base_cam is not None:
-            world.set_camera_pose(T_base_cam)
-        arm = SimArm(world)
-        try:
-            with SimCamera(world) as camera:
-                result = calibrate(
-                    arm, camera, told, wait=world.advance, progress=progress, seed=seed
-                )
-        finally:
-            arm.close()
-        T_true = world.T_base_cam()
-    truth = {
-        "T_base_cam": T_true.tolist(),
-        "tag_offset_ee": list(config.tag.offset_ee),
-        "encoder_bias_deg": np.degrees(arm.encoder_bias).tolist(),
-        "methods": {
-            name: pose_errors(fit.T_base_cam, T_true)
-            for name, fit in result.fits.items()
-            if not isinstance(fit, str)
-        },
-    }
-    truth.update(truth["methods"][result.method])
-    return dataclasses.replace(result, truth=truth)

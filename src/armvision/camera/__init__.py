@@ -1,6 +1,6 @@
 """Cameras: the RGB-D frame types, the Camera interface, and its backends.
 
-``SimCamera`` lives in ``armvision.camera.sim`` and is imported from there, so that importing
+``SimCamera`` lives in ``armvision.sim.camera`` and is imported from there, so that importing
 this package does not load MuJoCo.
 """
 

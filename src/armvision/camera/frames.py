@@ -136,13 +136,6 @@ class Intrinsics:
             coeffs=(coeffs + (0.0,) * 5)[:5],  # type: ignore[arg-type]
         )
 
-    def to_rs(self) -> Any:
-        """These intrinsics as a pyrealsense2 ``rs.intrinsics`` (needs pyrealsense2)."""
-        # camera/realsense.py is the only module that imports pyrealsense2.
-        from armvision.camera.realsense import intrinsics_to_rs
-
-        return intrinsics_to_rs(self)
-
 
 @dataclass(frozen=True, eq=False)
 class RGBDFrame:

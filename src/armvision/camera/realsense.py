@@ -112,6 +112,17 @@ def select_device(devices: Sequence[DeviceInfo], serial: str | None) -> DeviceIn
     return chosen
 
 
+def connected_devices() -> tuple[str, list[DeviceInfo]]:
+    """(pyrealsense2's version, the RealSense cameras connected now); HardwareError saying what
+    to do if pyrealsense2 is missing or cannot list devices."""
+    rs = _import_rs()
+    version = getattr(rs, "__version__", "?")
+    try:
+        return version, _device_infos(rs, rs.context())
+    except RuntimeError as exc:
+        raise HardwareError(f"pyrealsense2 {version}: cannot list devices ({exc})") from None
+
+
 def _device_infos(rs: Any, context: Any) -> list[DeviceInfo]:
     infos = []
     for device in context.query_devices():

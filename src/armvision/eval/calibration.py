@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from armvision.calibration.procedure import calibrate_sim
+from armvision.bench.system import calibrate_sim
 from armvision.config import Config
 from armvision.errors import CalibrationError
 

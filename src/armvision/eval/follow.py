@@ -10,7 +10,7 @@ so it moves smoothly between camera frames. The whole circle is checked to be in
 camera's view and every desired pose on it to be reachable before anything runs.
 
 **Runs.** For each mode (``servo``, then ``blocking``) a fresh lockstep
-:func:`~armvision.runtime.build.sim_system` of the same seed (same scene, same encoder
+:func:`~armvision.bench.system.sim_system` of the same seed (same scene, same encoder
 offsets): object and liquid detection off (nothing to see; it saves rendering), the tag stage
 at ``runtime.tag_hz``, fusion at ``fusion.rate_hz``. The arm is first put at the desired pose
 for the tag's start position (tag detection off meanwhile), the stages run 0.5 s, then
@@ -141,7 +141,7 @@ def _run_mode(
     settle_s: float,
 ) -> dict[str, Any]:
     """One follow run in ``mode``; its task report and the errors against the truth."""
-    from armvision.runtime.build import sim_system
+    from armvision.bench.system import sim_system
 
     follow_cfg = config.follow
     tag_id = follow_cfg.tag_id

@@ -187,9 +187,9 @@ def _evaluate_ee(
     waypoints: int,
     move_time: float,
 ) -> tuple[dict[str, Any], Array, Array, Array, dict[str, Any]]:
-    from armvision.camera.sim import SimCamera
     from armvision.perception.tags import TagDetector
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     empty = dataclasses.replace(
@@ -467,9 +467,9 @@ def _evaluate_objects(
     The detector (which needs the camera pose only for the table prior and the self-filter)
     runs once per frame with the first calibration; every loop gets the same detections.
     """
-    from armvision.camera.sim import SimCamera
     from armvision.perception.objects import GeometricDetector
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     scene, starts = _object_scene(config, seed)

@@ -47,7 +47,7 @@ def run_trial(
     config: Config, scene_seed: int, calibration: Any, arm_seed: object = None
 ) -> dict[str, Any]:
     """One grab in the scene of ``scene_seed``; the simulator's verdict and the task's report."""
-    from armvision.runtime.build import sim_system
+    from armvision.bench.system import sim_system
     from armvision.tasks.grab import grab
 
     with sim_system(
@@ -96,7 +96,7 @@ def evaluate_grab(
     progress: Callable[[int, int, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """``trials`` grabs in random scenes from ``seed`` (see the module docstring)."""
-    from armvision.calibration.procedure import calibrate_sim
+    from armvision.bench.system import calibrate_sim
     from armvision.runtime.build import result_status
     from armvision.sim.world import generate_scene
 

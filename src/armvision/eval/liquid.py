@@ -21,11 +21,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armvision.camera.frames import Intrinsics, project
-from armvision.camera.sim import SimCamera
 from armvision.config import Config
 from armvision.geometry import inv_T
 from armvision.perception.liquid import LiquidLevelMeter
 from armvision.sim._mujoco import mujoco
+from armvision.sim.camera import SimCamera
 from armvision.sim.world import (
     LIQUID_COLOURS,
     ObjectSpec,

@@ -126,8 +126,8 @@ def evaluate_objects(
     Returns {"summary": {object_recall, object_false_positives, object_label_accuracy,
     object_center_error_mm_median, scenes, objects, ...}, "per_scene": [...]}.
     """
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     config = dataclasses.replace(

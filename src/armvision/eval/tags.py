@@ -55,8 +55,8 @@ def evaluate_tags(
     max_tilt_deg: float = 40.0,
 ) -> dict[str, Any]:
     """Tag pose errors over ``seeds`` x ``poses_per_seed`` views; see the module docstring."""
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
 
     config = dataclasses.replace(

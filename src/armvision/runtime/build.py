@@ -1,6 +1,8 @@
-"""Building a :class:`~armvision.runtime.system.System` on the simulation or the real arm.
+"""Building a :class:`~armvision.runtime.system.System` on the real arm, and the runtime's view of a
+calibration (:class:`~armvision.runtime.state.CalibrationStatus`) from a file or a fresh result.
 
-Hardware modules (pyrealsense2, interbotix) are imported only by :func:`real_system`.
+Hardware modules (pyrealsense2, interbotix) are imported only by :func:`real_system`; the
+simulated bench builds its systems in :mod:`armvision.bench.system`.
 """
 
 from __future__ import annotations
@@ -8,11 +10,11 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
 from armvision.calibration.store import StoredCalibration, load
+from armvision.camera.placement import nominal_camera_pose
 from armvision.config import Config
 from armvision.errors import CalibrationError
 from armvision.fusion.drift import rotation_reference
@@ -73,75 +75,11 @@ def result_status(result) -> CalibrationStatus:
     )
 
 
-def calibrate_empty_table(config: Config, seed: int, T_base_cam: np.ndarray | None = None):
-    """Calibrate in the simulation as a user would: an empty table, the same camera placement
-    (``T_base_cam``, default the configured one) and the same arm (encoder offsets of
-    ``seed``). Returns (CalibrationStatus, CalibrationResult with the truth filled in);
-    CalibrationError if the result fails the plausibility check, as ``armvision calibrate``."""
-    import dataclasses
-
-    from armvision.calibration.procedure import calibrate_sim
-    from armvision.calibration.quality import check_quality
-
-    empty = dataclasses.replace(
-        config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0, loose_tags=0)
-    )
-    result = calibrate_sim(empty, seed, T_base_cam=T_base_cam)
-    check_quality(result, config.calibration, "check tag.* and calibration.* and run again")
-    return result_status(result), result
-
-
-def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
-    """The simulator's true camera pose, for tests that are not about calibration."""
-    return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))
-
-
-def sim_system(
-    config: Config,
-    seed: int = 0,
-    *,
-    mode: Literal["lockstep", "realtime"] = "lockstep",
-    scene=None,
-    calibration: CalibrationStatus | None = None,
-    arm_seed: object = None,
-    **detectors,
-) -> System:
-    """A System on a fresh SimWorld of ``seed`` (``scene`` overrides the seed's scene).
-
-    Without ``calibration`` the system runs with the simulator's true camera pose (say so in
-    anything you report). ``arm_seed`` draws the arm's encoder zero offsets (default: from
-    ``seed``); give the one a calibration was made with to keep "the same arm" across scenes.
-    The system owns the world, the arm and the camera.
-    """
-    from armvision.camera.sim import SimCamera
-    from armvision.robot.sim import SimArm
-    from armvision.sim.world import SimWorld
-
-    world = SimWorld(config, seed, mode=mode, scene=scene)
-    arm = SimArm(world, seed=arm_seed)
-    camera = SimCamera(world)
-    if calibration is None:
-        calibration = sim_truth_calibration(world.T_base_cam())
-    return System(
-        config,
-        arm,
-        camera,
-        calibration,
-        clock=lambda: world.time,
-        lockstep=mode == "lockstep",
-        world=world,
-        owns=(arm, world),
-        **detectors,
-    )
-
-
 def uncalibrated(config: Config) -> CalibrationStatus:
     """No calibration yet: the nominal camera placement (``sim.camera_*``), marked so that
     nothing moves the arm to what the camera sees until a calibration is made."""
-    from armvision.sim.world import random_camera_pose
-
     return CalibrationStatus(
-        "not calibrated", "none", None, random_camera_pose(config.sim, None), calibrated=False
+        "not calibrated", "none", None, nominal_camera_pose(config.sim), calibrated=False
     )
 
 

@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from armvision.camera.sim import SimCamera
 from armvision.config import Config, config_to_dict
 from armvision.errors import SimulationError
-from armvision.robot.sim import SimArm
+from armvision.sim.arm import SimArm
+from armvision.sim.camera import SimCamera
 from armvision.sim.world import SimWorld
 
 DEPTH_COLOUR_RANGE_M = (0.3, 2.0)  # depths mapped onto the colour scale

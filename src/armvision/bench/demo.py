@@ -137,7 +137,7 @@ def _calibrate(
     config: Config, seed: int, T_base_cam: np.ndarray, report: DemoReport, say: Callable
 ) -> CalibrationStatus:
     """Calibrate on an empty table with the demo's camera placement and arm."""
-    from armvision.runtime.build import calibrate_empty_table
+    from armvision.bench.system import calibrate_empty_table
 
     say("calibrating with the gripper tag (empty table)")
     status, result = calibrate_empty_table(config, seed, T_base_cam)
@@ -162,9 +162,10 @@ def run_demo(
     say: Callable[[str], None] = lambda message: None,
 ) -> DemoReport:
     """Run the demo (see the module docstring); the report says what passed."""
-    from armvision.runtime.build import load_calibration, sim_system
+    from armvision.bench.snapshot import _write_png
+    from armvision.bench.system import sim_system
+    from armvision.runtime.build import load_calibration
     from armvision.runtime.view import annotated
-    from armvision.sim.snapshot import _write_png
     from armvision.tasks.analyze import analyze
     from armvision.tasks.grab import grab
 

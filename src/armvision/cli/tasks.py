@@ -1,149 +1,39 @@
-"""``armvision demo``, ``grab``, ``follow``, ``analyze`` and ``eval grab|follow``.
-
-The task commands build the running system (:mod:`armvision.runtime`) on the simulation
-(``--sim``, default; lockstep unless ``--realtime``) or on the real arm and camera
-(``--real``), let the stages look for a moment, run one task and print its report. Ctrl-C
-stops the task (the arm halts where it is) and shuts the system down cleanly.
-"""
+"""``armvision demo``, ``grab``, ``analyze``, ``follow`` and ``ui``: the tasks on a running
+system, simulated or real, and their parsers."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import math
-import sys
-import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from armvision.config import TAG_FAMILY_SIZES, Config
-from armvision.errors import ArmvisionError, ConfigError
+from armvision.cli.args import (
+    _say,
+    _sim_calibration_path,
+    _where,
+    out_dir,
+    port,
+    runs,
+    seconds,
+    seed,
+    tag_id,
+    track_id,
+    writable_dir,
+)
+from armvision.cli.evaluate import cmd_eval_follow, cmd_eval_grab
+from armvision.config import (
+    Config,
+)
 
 #: Seconds the stages run before a task starts, so tracks are confirmed and tags seen.
 WARM_UP_S = 1.5
 
 
-def _say(message: str) -> None:
-    print(f"armvision: {message}", file=sys.stderr, flush=True)
-
-
-# --------------------------------------------------------------------------- argument types
-# argparse ``type=`` functions: a bad value is argparse's one-line error naming the argument.
-
-#: Scene seeds: numpy's SeedSequence takes any non-negative int; 32 bits are plenty and print.
-MAX_SEED = 2**32 - 1
-#: At most this many scenes, trials or seeds in one evaluation.
-MAX_RUNS = 10_000
-
-
-def int_in(low: int, high: int, what: str) -> Callable[[str], int]:
-    """An int argument in ``low``..``high``; ``what`` says what it counts in the error."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or not low <= value <= high:
-            raise argparse.ArgumentTypeError(
-                f"must be {what}, a whole number from {low} to {high}, not {text!r}"
-            )
-        return value
-
-    parse.__name__ = what  # argparse's fallback messages name the type
-    return parse
-
-
-def float_in(low: float, high: float, what: str, above_low: bool = False) -> Callable[[str], float]:
-    """A finite number argument in ``low``..``high`` (above ``low`` with ``above_low``);
-    ``what`` says what it is, with its range, in the error."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        inside = low < value if above_low else low <= value
-        if not (math.isfinite(value) and inside and value <= high):
-            raise argparse.ArgumentTypeError(f"must be {what}, not {text!r}")
-        return value
-
-    parse.__name__ = what
-    return parse
-
-
-#: A duration: seconds above 0, at most a day.
-seconds = float_in(0.0, 86400.0, "a duration in seconds above 0 and at most 86400", True)
-#: A distance: millimetres from 0 to 1000.
-millimetres = float_in(0.0, 1000.0, "millimetres from 0 to 1000")
-
-
-def seeds(text: str) -> str:
-    """``--seeds``: one seed (7), a range (0-9) or a list (1,4,9), each 0..MAX_SEED, at most
-    MAX_RUNS in all; returned as given (armvision.eval.parse_seeds expands it)."""
-    from armvision.eval import parse_seeds
-
-    count = 0
-    for part in text.split(","):
-        first, sep, last = part.strip().partition("-")
-        try:
-            low = int(first)
-            high = int(last) if sep else low
-        except ValueError:
-            continue  # parse_seeds says what is wrong with it
-        if not 0 <= low <= high <= MAX_SEED:
-            raise argparse.ArgumentTypeError(
-                f"{text!r}: seeds run from 0 to {MAX_SEED}, a range low-high with low <= high"
-            )
-        count += high - low + 1
-        if count > MAX_RUNS:
-            raise argparse.ArgumentTypeError(
-                f"{text!r}: at most {MAX_RUNS} seeds; give a shorter range"
-            )
-    try:
-        parse_seeds(text)
-    except ConfigError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
-
-
-def out_dir(text: str) -> str:
-    """An output directory argument: not empty (checked for writing by :func:`writable_dir`)."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("give a directory, not an empty path")
-    return text
-
-
-seed = int_in(0, MAX_SEED, "a seed")
-port = int_in(0, 65535, "a TCP port (0: any free one)")
-runs = int_in(1, MAX_RUNS, "a count")
-track_id = int_in(0, 2**31 - 1, "a track id")
-tag_id = int_in(0, max(TAG_FAMILY_SIZES.values()) - 1, "a tag id")
-
-
-def writable_dir(path: str | Path, argument: str = "--out") -> Path:
-    """``path`` created if need be and checked writable, before anything slow starts; an
-    ArmvisionError naming ``argument`` otherwise."""
-    out = Path(path)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as exc:
-        raise ArmvisionError(
-            f"{argument} {path}: cannot write there ({exc.strerror or exc}); choose a directory "
-            "you can write to"
-        ) from None
-    return out
-
-
-# --------------------------------------------------------------------------- armvision demo
-
-
 def cmd_demo(args: argparse.Namespace, config: Config) -> int:
-    from armvision.demo import run_demo
+    from armvision.bench.demo import run_demo
 
     writable_dir(args.out)  # before the calibration and the run, not after them
     report = run_demo(config, args.seed, args.out, args.calibration, say=_say)
@@ -154,9 +44,6 @@ def cmd_demo(args: argparse.Namespace, config: Config) -> int:
         if report.image_path is not None:
             print(f"annotated image: {report.image_path}")
     return 0 if report.ok else 1
-
-
-# --------------------------------------------------------------------------- task commands
 
 
 def _system(args: argparse.Namespace, config: Config):
@@ -253,13 +140,8 @@ def cmd_follow(args: argparse.Namespace, config: Config) -> int:
     )
 
 
-# --------------------------------------------------------------------------- armvision ui
-
-
 def cmd_ui(args: argparse.Namespace, config: Config) -> int:
-    import dataclasses
 
-    from armvision.cli import _sim_calibration_path
     from armvision.ui.server import OperatorUI, Server, listen, resolve_token
 
     host = args.host or config.ui.host
@@ -297,67 +179,6 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
             _say("UI closing: stopping the threads")
     _say("UI closed")
     return 0
-
-
-# --------------------------------------------------------------------------- evals
-
-
-def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
-    from armvision.cli import _print_summary
-    from armvision.eval.grab import evaluate_grab
-
-    def progress(done: int, total: int, row: dict[str, Any]) -> None:
-        verdict = "ok" if row["success"] else f"FAILED ({row['task_error'] or row['held']})"
-        _say(f"trial {done}/{total}, scene {row['seed']}: {verdict}")
-
-    result = evaluate_grab(
-        config, args.trials, args.seed, args.calibration, None if args.json else progress
-    )
-    if args.json:
-        print(json.dumps(result, indent=2))
-        return 0
-    _print_summary(f"grab, {args.trials} random scenes from seed {args.seed}", result["summary"])
-    for row in result["failures"]:
-        print(f"  scene {row['seed']}: {row['task_phase']} {row['task_error'] or ''}")
-    return 0
-
-
-def cmd_eval_follow(args: argparse.Namespace, config: Config) -> int:
-    from armvision.cli import _print_summary
-    from armvision.eval.follow import evaluate_follow
-
-    kwargs = {} if args.duration is None else {"duration_s": args.duration}
-    result = evaluate_follow(config, seed=args.seed, **kwargs)
-    if args.json:
-        print(json.dumps(result, indent=2))
-        return 0
-    _print_summary(f"follow a tag on a circle, seed {args.seed}", result["summary"])
-    return 0
-
-
-# --------------------------------------------------------------------------- parsers
-
-
-def _where(
-    parser: argparse.ArgumentParser,
-    task: bool = True,
-    calibration_help: str = "calibration file (real default: calibration.file); in simulation "
-    "the default is to calibrate now, and 'truth' uses the simulator's camera pose",
-) -> None:
-    """--sim | --real, --seed, --calibration; a one-task command also gets --realtime, --json."""
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--sim", action="store_true", help="the simulated workspace (default)")
-    where.add_argument("--real", action="store_true", help="the real arm and RealSense camera")
-    parser.add_argument("--seed", type=seed, default=0, help="scene seed (simulation)")
-    parser.add_argument("--calibration", metavar="PATH", help=calibration_help)
-    if not task:
-        return
-    parser.add_argument(
-        "--realtime",
-        action="store_true",
-        help="simulation on the wall clock, threads as on the real arm",
-    )
-    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
 
 
 def add_parsers(sub: Any, eval_sub: Any) -> None:

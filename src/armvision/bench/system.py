@@ -1,0 +1,120 @@
+"""The simulated bench: a :class:`~armvision.runtime.system.System` on a fresh SimWorld, and
+calibration in the simulation as a user would do it, compared with the simulator's truth.
+
+This package sits above the runtime and the tasks: it wires the simulation in, and nothing
+below it knows that the arm or the camera is simulated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from armvision.calibration.procedure import CalibrationResult, calibrate, pose_errors
+from armvision.calibration.quality import check_quality
+from armvision.calibration.sampling import Progress
+from armvision.config import Config, TagConfig
+from armvision.runtime.build import result_status
+from armvision.runtime.state import CalibrationStatus
+from armvision.runtime.system import System
+from armvision.sim.arm import SimArm
+from armvision.sim.camera import SimCamera
+from armvision.sim.world import SceneSpec, SimWorld
+
+Array = NDArray[np.float64]
+
+
+def calibrate_sim(
+    config: Config,
+    seed: int,
+    T_base_cam: Array | None = None,
+    calibration_tag: TagConfig | None = None,
+    progress: Progress | None = None,
+) -> CalibrationResult:
+    """Calibrate in a fresh lockstep simulation of ``seed`` and compare with the truth.
+
+    ``T_base_cam`` places the simulated camera (default: the configured placement);
+    ``calibration_tag`` is the tag the calibration is *told* about, when it should differ
+    from the one the simulation mounts (``config.tag``), e.g. a mis-measured offset.
+    """
+    told = config if calibration_tag is None else dataclasses.replace(config, tag=calibration_tag)
+    with SimWorld(config, seed) as world:
+        if T_base_cam is not None:
+            world.set_camera_pose(T_base_cam)
+        arm = SimArm(world)
+        try:
+            with SimCamera(world) as camera:
+                result = calibrate(
+                    arm, camera, told, wait=world.advance, progress=progress, seed=seed
+                )
+        finally:
+            arm.close()
+        T_true = world.T_base_cam()
+    truth = {
+        "T_base_cam": T_true.tolist(),
+        "tag_offset_ee": list(config.tag.offset_ee),
+        "encoder_bias_deg": np.degrees(arm.encoder_bias).tolist(),
+        "methods": {
+            name: pose_errors(fit.T_base_cam, T_true)
+            for name, fit in result.fits.items()
+            if not isinstance(fit, str)
+        },
+    }
+    truth.update(truth["methods"][result.method])
+    return dataclasses.replace(result, truth=truth)
+
+
+def calibrate_empty_table(config: Config, seed: int, T_base_cam: np.ndarray | None = None):
+    """Calibrate in the simulation as a user would: an empty table, the same camera placement
+    (``T_base_cam``, default the configured one) and the same arm (encoder offsets of
+    ``seed``). Returns (CalibrationStatus, CalibrationResult with the truth filled in);
+    CalibrationError if the result fails the plausibility check, as ``armvision calibrate``."""
+    empty = dataclasses.replace(
+        config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0, loose_tags=0)
+    )
+    result = calibrate_sim(empty, seed, T_base_cam=T_base_cam)
+    check_quality(result, config.calibration, "check tag.* and calibration.* and run again")
+    return result_status(result), result
+
+
+def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
+    """The simulator's true camera pose, for tests that are not about calibration."""
+    return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))
+
+
+def sim_system(
+    config: Config,
+    seed: int = 0,
+    *,
+    mode: Literal["lockstep", "realtime"] = "lockstep",
+    scene: SceneSpec | None = None,
+    calibration: CalibrationStatus | None = None,
+    arm_seed: object = None,
+    **detectors,
+) -> System:
+    """A System on a fresh SimWorld of ``seed`` (``scene`` overrides the seed's scene).
+
+    Without ``calibration`` the system runs with the simulator's true camera pose (say so in
+    anything you report). ``arm_seed`` draws the arm's encoder zero offsets (default: from
+    ``seed``); give the one a calibration was made with to keep "the same arm" across scenes.
+    The system owns the world, the arm and the camera.
+    """
+    world = SimWorld(config, seed, mode=mode, scene=scene)
+    arm = SimArm(world, seed=arm_seed)
+    camera = SimCamera(world)
+    if calibration is None:
+        calibration = sim_truth_calibration(world.T_base_cam())
+    return System(
+        config,
+        arm,
+        camera,
+        calibration,
+        clock=lambda: world.time,
+        lockstep=mode == "lockstep",
+        world=world,
+        owns=(arm, world),
+        **detectors,
+    )

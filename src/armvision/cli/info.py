@@ -1,0 +1,134 @@
+"""``armvision info`` and ``armvision config``: which backends work here, and the effective
+configuration."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+from dataclasses import asdict, dataclass
+
+from armvision import __version__
+from armvision.config import (
+    Config,
+    config_to_toml,
+    find_config_file,
+)
+from armvision.errors import ArmvisionError
+
+
+@dataclass(frozen=True)
+class BackendStatus:
+    """Whether one backend can be used on this machine, and why (not)."""
+
+    name: str
+    usable: bool
+    detail: str
+
+
+# Rendering is probed in a child process: a broken GL stack can abort the interpreter, and
+# MUJOCO_GL is read once, at import.
+_MUJOCO_PROBE = """
+import mujoco
+model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size="0.1"/></worldbody></mujoco>')
+renderer = mujoco.Renderer(model, 48, 64)
+data = mujoco.MjData(model)
+mujoco.mj_forward(model, data)
+renderer.update_scene(data)
+image = renderer.render()
+renderer.close()
+print(mujoco.__version__, image.shape[1], image.shape[0])
+"""
+
+
+def check_mujoco(timeout_s: float = 60.0) -> BackendStatus:
+    """Can MuJoCo render offscreen here (the simulated camera needs it)?"""
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    try:
+        result = subprocess.run(
+            [sys.executable, "-c", _MUJOCO_PROBE],
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            env=env,
+        )
+    except subprocess.TimeoutExpired:
+        return BackendStatus("mujoco", False, f"rendering test hung for {timeout_s:.0f} s")
+    if result.returncode != 0:
+        lines = (result.stderr or result.stdout).strip().splitlines()
+        why = lines[-1] if lines else f"exit status {result.returncode}"
+        if "No module named 'mujoco'" in why:
+            return BackendStatus("mujoco", False, "not installed: pip install mujoco")
+        return BackendStatus(
+            "mujoco",
+            False,
+            f"cannot render with MUJOCO_GL={env['MUJOCO_GL']} ({why}); install libegl1 "
+            "libgl1-mesa-dri (make setup does) or try MUJOCO_GL=osmesa",
+        )
+    version = result.stdout.split()[0]
+    return BackendStatus(
+        "mujoco",
+        True,
+        f"MuJoCo {version}, offscreen rendering with MUJOCO_GL={env['MUJOCO_GL']} works",
+    )
+
+
+def check_realsense() -> BackendStatus:
+    """Is pyrealsense2 installed, and which cameras are connected?"""
+    from armvision.camera.realsense import connected_devices
+
+    try:
+        version, devices = connected_devices()
+    except ArmvisionError as exc:
+        if "No module named" in str(exc):
+            why = "pyrealsense2 not installed: pip install 'armvision[realsense]'"
+        else:
+            why = str(exc)
+        return BackendStatus("realsense", False, why)
+    if not devices:
+        return BackendStatus(
+            "realsense",
+            False,
+            f"pyrealsense2 {version} installed; no RealSense camera connected"
+            " (plug it into a USB 3 port)",
+        )
+    found = [f"{d.name} serial {d.serial} on USB {d.usb_type or '?'}" for d in devices]
+    return BackendStatus("realsense", True, f"pyrealsense2 {version}: " + "; ".join(found))
+
+
+def check_interbotix() -> BackendStatus:
+    """Are the Interbotix ROS 2 Python modules importable (needed for the real arm)?"""
+    from armvision.robot.interbotix import interbotix_available
+
+    usable, detail = interbotix_available()
+    return BackendStatus("interbotix", usable, detail)
+
+
+def cmd_info(args: argparse.Namespace, config: Config) -> int:
+    statuses = [check_mujoco(), check_realsense(), check_interbotix()]
+    config_file = find_config_file(args.config)
+    report = {
+        "version": __version__,
+        "python": platform.python_version(),
+        "platform": f"{platform.system()} {platform.machine()}",
+        "config": str(config_file) if config_file else "defaults",
+        "backends": [asdict(s) for s in statuses],
+    }
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"armvision {__version__} (Python {report['python']}, {report['platform']})")
+    print(f"config: {report['config']}")
+    width = max(len(s.name) for s in statuses)
+    for s in statuses:
+        print(f"  {s.name:<{width}}  {'yes' if s.usable else 'no ':<3}  {s.detail}")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace, config: Config) -> int:
+    print(config_to_toml(config), end="")
+    return 0
