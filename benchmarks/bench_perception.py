@@ -16,8 +16,9 @@ import cv2
 import numpy as np
 
 from armvision.config import Config
+from armvision.perception.detection import FrameContext
+from armvision.perception.geometric import GeometricDetector
 from armvision.perception.liquid import LiquidLevelMeter
-from armvision.perception.objects import GeometricDetector
 from armvision.perception.tags import TagDetector, pupil_detector
 from armvision.sim.arm import SimArm
 from armvision.sim.camera import SimCamera
@@ -33,10 +34,12 @@ def _median_ms(fn, repeats: int) -> float:
     return 1e3 * float(np.median(times))
 
 
-def _time_stages(frame, q, objects, tags, tags_no_depth, raw, liquid, repeats: int) -> list[float]:
+def _time_stages(
+    frame, context, objects, tags, tags_no_depth, raw, liquid, repeats: int
+) -> list[float]:
     """Median ms of each stage on one frame, in the order of the table's rows."""
     gray = cv2.cvtColor(frame.color, cv2.COLOR_RGB2GRAY)
-    bottles = [d for d in objects.detect(frame, q) if d.label == "bottle"]
+    bottles = [d for d in objects.detect(frame, context) if d.label == "bottle"]
 
     def measure_bottles() -> None:
         for det in bottles:
@@ -44,7 +47,7 @@ def _time_stages(frame, q, objects, tags, tags_no_depth, raw, liquid, repeats: i
 
     def pipeline() -> None:
         tags.detect(frame)
-        for det in objects.detect(frame, q):
+        for det in objects.detect(frame, context):
             if det.label == "bottle":
                 liquid.measure(frame, det.box)
 
@@ -52,7 +55,7 @@ def _time_stages(frame, q, objects, tags, tags_no_depth, raw, liquid, repeats: i
         lambda: tags.detect(frame),
         lambda: tags_no_depth.detect(frame),
         lambda: raw.detect(gray),
-        lambda: objects.detect(frame, q),
+        lambda: objects.detect(frame, context),
         measure_bottles,
         pipeline,
     ]
@@ -86,9 +89,12 @@ def main(argv: list[str] | None = None) -> dict:
             world.advance(0.3)
             frame = camera.read()
             q = arm.get_joint_positions()
-            objects = GeometricDetector(world.T_base_cam())
-            objects.detect(frame, q)  # builds its per-intrinsics ray cache
-            times = _time_stages(frame, q, objects, tags, tags_no_depth, raw, liquid, args.repeats)
+            context = FrameContext(T_base_cam=world.T_base_cam(), joint_positions=q)
+            objects = GeometricDetector()
+            objects.detect(frame, context)  # builds its per-intrinsics ray cache
+            times = _time_stages(
+                frame, context, objects, tags, tags_no_depth, raw, liquid, args.repeats
+            )
             for name, ms in zip(rows, times):
                 rows[name].append(ms)
 

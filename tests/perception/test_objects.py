@@ -9,6 +9,7 @@ and with a fake detectNet object that follows jetson-inference's interface.
 
 from __future__ import annotations
 
+import inspect
 import math
 import sys
 
@@ -20,65 +21,19 @@ from armvision.config import Config, SimConfig
 from armvision.errors import PerceptionError
 from armvision.eval.objects import evaluate_objects, match_detections
 from armvision.geometry import make_T, rot_x, transform_points
-from armvision.perception.objects import (
+from armvision.perception.detection import (
+    NO_CONTEXT,
     Detection,
-    Detector,
-    GeometricDetector,
-    JetsonDetector,
-    OnnxDetector,
-    arm_capsules_base,
+    FrameContext,
+    ObjectDetector,
     box_center_3d,
-    fit_circle_geometric,
-    fit_circle_kasa,
-    fit_plane_ransac,
 )
-from armvision.robot.kinematics import VX300S, fk
+from armvision.perception.geometric import GeometricDetector
+from armvision.perception.jetson import JetsonDetector
+from armvision.perception.learned import OnnxDetector, class_ids_from_labels, read_labels
 
 INTR = Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5)
 ACCEPTANCE_SEEDS = list(range(20))
-
-
-# --------------------------------------------------------------------------- pure helpers
-
-
-def test_ransac_finds_a_plane_among_outliers() -> None:
-    rng = np.random.default_rng(1)
-    normal = np.array([0.0, -0.87, -0.5])
-    normal /= np.linalg.norm(normal)
-    offset = 0.5
-    uv = rng.uniform(-0.5, 0.5, (3000, 2))
-    e1 = np.array([1.0, 0.0, 0.0])
-    e2 = np.cross(normal, e1)
-    on_plane = uv[:, :1] * e1 + uv[:, 1:] * e2 - offset * normal
-    on_plane += rng.normal(0, 0.002, on_plane.shape)
-    outliers = rng.uniform(-1, 1, (1000, 3)) + np.array([0.0, 0.0, 1.0])
-    points = np.concatenate([on_plane, outliers])
-    n, d, inliers = fit_plane_ransac(points, 0.008, 64, rng)
-    assert abs(n @ normal) > math.cos(math.radians(0.5))
-    assert d == pytest.approx(offset, abs=0.002)
-    assert inliers[:3000].mean() > 0.99
-
-
-def test_circle_fit_on_a_noisy_half_arc() -> None:
-    """The camera sees half a cylinder: the fit must find the centre, not the arc's centroid."""
-    rng = np.random.default_rng(2)
-    center, radius = np.array([0.1, 0.7]), 0.03
-    angles = rng.uniform(np.pi, 2 * np.pi, 400)  # the half facing the origin (the camera)
-    xy = center + radius * np.column_stack([np.cos(angles), np.sin(angles)])
-    xy += rng.normal(0, 0.002, xy.shape)
-    c0, r0 = fit_circle_kasa(xy)
-    c, r, _ = fit_circle_geometric(xy, c0, r0, 0.004)
-    assert np.linalg.norm(c - center) < 0.002
-    assert r == pytest.approx(radius, abs=0.002)
-    assert np.linalg.norm(xy.mean(axis=0) - center) > 0.015  # the centroid would be far off
-
-
-def test_arm_capsules_follow_forward_kinematics() -> None:
-    """A capsule end at the home ee position, moved by all six joints, lands on fk(q)."""
-    q = np.array([0.4, -0.6, 0.8, 0.3, 0.5, -0.2])
-    capsules = (((0.0, 0.0, 0.0), tuple(VX300S.M[:3, 3]), 0.01, 6),)
-    _, b, _ = arm_capsules_base(q, capsules)
-    assert np.allclose(b[0], fk(q)[:3, 3], atol=1e-12)
 
 
 # --------------------------------------------------------------------------- simulated scenes
@@ -154,13 +109,97 @@ def test_self_filter_removes_the_arm(arm_world, pose) -> None:
     x, y, z, pitch = pose
     assert arm.set_ee_pose_components(x=x, y=y, z=z, roll=0.0, pitch=pitch)
     frame = camera.read()
-    detector = GeometricDetector(world.T_base_cam())
-    assert detector.detect(frame, arm.get_joint_positions()) == []
-    assert len(detector.detect(frame)) >= 1
+    detector = GeometricDetector()
+    T_base_cam = world.T_base_cam()
+    assert detector.detect(frame, FrameContext(T_base_cam, arm.get_joint_positions())) == []
+    assert len(detector.detect(frame, FrameContext(T_base_cam))) >= 1
 
 
-def test_geometric_detector_is_a_detector() -> None:
-    assert isinstance(GeometricDetector(), Detector)
+def test_every_detector_satisfies_the_protocol() -> None:
+    """The three detectors take the same call, detect(frame, context) with the context
+    optional; the learned ones find the same with or without it."""
+    for cls in (GeometricDetector, OnnxDetector, JetsonDetector):
+        params = list(inspect.signature(cls.detect).parameters.values())
+        assert [p.name for p in params] == ["self", "frame", "context"], cls.__name__
+        assert params[2].default is NO_CONTEXT, cls.__name__
+    net = FakeDetectNet([FakeDetectNetDetection(44, 0.9, 300, 200, 340, 300)])
+    jetson = JetsonDetector(net=net, to_cuda=lambda image: image)
+    for detector in (GeometricDetector(), jetson):
+        assert isinstance(detector, ObjectDetector)
+    frame = _flat_frame()
+    plain = [d.to_dict() for d in jetson.detect(frame)]
+    told = [d.to_dict() for d in jetson.detect(frame, FrameContext(np.eye(4), np.zeros(6)))]
+    assert plain == told and [d["label"] for d in plain] == ["bottle"]
+
+
+#: GeometricDetector's detections on the simulated bench (scene seed 3, arm asleep, the true
+#: camera pose and the joint angles), recorded with the detector before the frame context
+#: existed (the camera pose given to its constructor, the joints to detect):
+#: (label, score, center_cam, radius, height, box).
+SEED_3_DETECTIONS = [
+    (
+        "bottle",
+        0.9437299035369775,
+        (-0.17693540621372864, 0.05856984145558501, 0.6280185630081012),
+        0.029892397234214586,
+        0.16996931216491346,
+        (100.79728260209117, 209.3568482292692, 186.06147027945607, 380.83189399959775),
+    ),
+    (
+        "bottle",
+        0.9807987711213517,
+        (-0.02166033593340416, 0.014091322422580987, 0.658466996820423),
+        0.030152542235888043,
+        0.21644468179161738,
+        (266.75071380074087, 147.12272402391346, 329.12380104201674, 350.5700215092068),
+    ),
+    (
+        "bottle",
+        0.9713261648745519,
+        (0.23457283859708913, -0.06059264073716218, 0.7842312935361547),
+        0.028080318541713004,
+        0.21976232851649324,
+        (470.40348447381115, 100.93992122842116, 543.1084836435169, 277.16788712281),
+    ),
+    (
+        "cup",
+        0.9970588235294118,
+        (-0.2795697720512887, -0.032143128802035896, 0.8618575488549955),
+        0.02956132404444279,
+        0.09296857582222073,
+        (91.72572982505267, 177.45647589327888, 147.39051387230165, 256.88189445523255),
+    ),
+]
+
+
+def test_the_pose_in_the_context_gives_the_detections_of_before() -> None:
+    """Same frame, same detections: the camera pose now comes with the frame's context."""
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
+    from armvision.sim.world import SimWorld
+
+    with SimWorld(Config(), 3) as world, SimCamera(world) as camera:
+        arm = SimArm(world)
+        arm.go_to_sleep_pose()
+        world.advance(0.3)
+        frame = camera.read()
+        context = FrameContext(world.T_base_cam(), arm.get_joint_positions())
+    found = GeometricDetector(seed=3).detect(frame, context)
+    assert len(found) == len(SEED_3_DETECTIONS)
+    for det, (label, score, center, radius, height, box) in zip(found, SEED_3_DETECTIONS):
+        assert det.label == label
+        assert det.score == pytest.approx(score, abs=1e-9)
+        np.testing.assert_allclose(det.center_cam, center, atol=1e-9)
+        assert det.radius == pytest.approx(radius, abs=1e-9)
+        assert det.height == pytest.approx(height, abs=1e-9)
+        np.testing.assert_allclose(det.box, box, atol=1e-6)
+    # Without the pose the self-filter cannot run: the arm is reported as well.
+    assert len(GeometricDetector(seed=3).detect(frame)) > len(SEED_3_DETECTIONS)
+
+
+def test_a_camera_pose_that_is_no_pose_is_a_clear_error() -> None:
+    with pytest.raises(PerceptionError, match="4x4"):
+        GeometricDetector().detect(_flat_frame(), FrameContext(T_base_cam=np.eye(3)))
 
 
 def test_empty_depth_is_a_clear_error() -> None:
@@ -307,8 +346,6 @@ def test_onnx_detector_errors(tmp_path) -> None:
         OnnxDetector(tmp_path / "missing.onnx")
     labels = tmp_path / "labels.txt"
     labels.write_text("background\nperson\n")
-    from armvision.perception.objects import class_ids_from_labels, read_labels
-
     with pytest.raises(PerceptionError, match="no bottle or cup"):
         class_ids_from_labels(read_labels(labels))
 

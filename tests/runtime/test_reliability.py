@@ -13,7 +13,8 @@ import pytest
 from armvision.bench.system import sim_system, sim_truth_calibration
 from armvision.config import Config
 from armvision.errors import ArmvisionError, HardwareError
-from armvision.perception.objects import Detection, GeometricDetector
+from armvision.perception.detection import NO_CONTEXT, Detection
+from armvision.perception.geometric import GeometricDetector
 from armvision.runtime.system import System
 from armvision.sim.arm import SimArm
 from armvision.sim.world import SimWorld, bench_scene
@@ -84,8 +85,8 @@ def test_stop_in_lockstep_with_a_failing_halt_reports_instead_of_raising() -> No
 class _NaNDetector(GeometricDetector):
     """The real geometric detector, plus one bottle with NaN in its centre (a detector bug)."""
 
-    def detect(self, frame, joint_positions=None):
-        found = super().detect(frame, joint_positions)
+    def detect(self, frame, context=NO_CONTEXT):
+        found = super().detect(frame, context)
         bad = Detection(
             "bottle",
             0.9,
@@ -101,7 +102,7 @@ class _NaNDetector(GeometricDetector):
 def test_a_nan_detection_is_blamed_on_the_object_stage_and_fusion_goes_on() -> None:
     config = Config()
     system = sim_system(config, seed=3, scene=bench_scene(config))
-    system.object_detector = _NaNDetector(system.T_base_cam)
+    system.object_detector = _NaNDetector()
     system.start()
     try:
         system.pump(2.0)

@@ -35,12 +35,13 @@ def cmd_sim_snapshot(args: argparse.Namespace, config: Config) -> int:
 def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None) -> dict:
     """Tags, containers and liquid levels in one frame, and the annotated image."""
     from armvision.perception.annotate import annotate
+    from armvision.perception.detection import FrameContext
+    from armvision.perception.geometric import GeometricDetector
     from armvision.perception.liquid import ContainerGeometry, LiquidLevelMeter
-    from armvision.perception.objects import GeometricDetector
     from armvision.perception.tags import TagDetector
 
     tags = TagDetector.from_config(config.tag).detect(frame)
-    detections = GeometricDetector(T_base_cam).detect(frame, joint_positions)
+    detections = GeometricDetector().detect(frame, FrameContext(T_base_cam, joint_positions))
     meter = LiquidLevelMeter()
     levels = [
         meter.measure(frame, d.box, ContainerGeometry(tuple(d.center_cam), d.radius, d.height))

@@ -467,7 +467,8 @@ def _evaluate_objects(
     The detector (which needs the camera pose only for the table prior and the self-filter)
     runs once per frame with the first calibration; every loop gets the same detections.
     """
-    from armvision.perception.objects import GeometricDetector
+    from armvision.perception.detection import FrameContext
+    from armvision.perception.geometric import GeometricDetector
     from armvision.sim.arm import SimArm
     from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
@@ -492,7 +493,8 @@ def _evaluate_objects(
     records: dict[str, list[dict[str, Any]]] = {name: [] for name in calibrations}
     with SimWorld(config, seed, scene=scene) as world, SimCamera(world) as camera:
         arm = SimArm(world)  # asleep, out of the way; its readings feed the self-filter
-        detector = GeometricDetector(next(iter(calibrations.values())), seed=seed)
+        detector = GeometricDetector(seed=seed)
+        T_detector = next(iter(calibrations.values()))
         loops = {
             name: FusionLoop(
                 fusion,
@@ -517,7 +519,8 @@ def _evaluate_objects(
             frame_time = None
             while schedule.due(world.time) <= tick + 1e-9:
                 frame = schedule.read()
-                detections = detector.detect(frame, arm.get_joint_positions())
+                context = FrameContext(T_detector, arm.get_joint_positions())
+                detections = detector.detect(frame, context)
                 for loop in loops.values():
                     loop.push_detections(frame.timestamp, detections)
                 frame_time = frame.timestamp

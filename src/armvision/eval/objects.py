@@ -35,7 +35,8 @@ from scipy.optimize import linear_sum_assignment
 from armvision.camera.frames import Intrinsics, project
 from armvision.config import Config
 from armvision.geometry import inv_T, transform_points
-from armvision.perception.objects import Detection, GeometricDetector
+from armvision.perception.detection import Detection, FrameContext
+from armvision.perception.geometric import GeometricDetector
 
 Array = np.ndarray
 
@@ -147,8 +148,9 @@ def evaluate_objects(
             true_depth = camera.render_true_depth()
             truth = world.ground_truth()
             q_encoders = arm.get_joint_positions()
-        detector = GeometricDetector(truth.T_base_cam, seed=seed, **(detector_kwargs or {}))
-        detections: list[Detection] = detector.detect(frame, q_encoders)
+        detector = GeometricDetector(seed=seed, **(detector_kwargs or {}))
+        context = FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q_encoders)
+        detections: list[Detection] = detector.detect(frame, context)
 
         T_cam_base = inv_T(truth.T_base_cam)
         objects = []

@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armvision.camera.frames import Intrinsics, project
+from armvision.perception.detection import Detection
 from armvision.perception.liquid import LiquidLevel
-from armvision.perception.objects import Detection
 from armvision.perception.tags import TagDetection
 
 _LABEL_COLOURS = {"bottle": (255, 170, 0), "cup": (0, 200, 255)}  # RGB

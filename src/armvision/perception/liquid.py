@@ -65,12 +65,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.errors import PerceptionError
-from armvision.perception.objects import BOTTLE_BODY_FRACTION, fit_plane_ransac
+from armvision.perception.detection import BOTTLE_BODY_FRACTION
+from armvision.perception.fitting import fit_plane
 
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
 Method = Literal["profile", "hough"]
 METHODS = ("profile", "hough")
+#: The camera's up (-y in the optical frame): the table's normal faces roughly this way.
+_UP_CAM = np.array([0.0, -1.0, 0.0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,41 +207,6 @@ def hough_level(
 # --------------------------------------------------------------------------- 3-D helpers
 
 
-def fit_table_plane(
-    points: Array,
-    rng: np.random.Generator,
-    hypotheses: int = 64,
-    inlier_m: float = 0.006,
-    min_up: float = 0.5,
-    max_score: int = 1500,
-) -> tuple[Array, float, int]:
-    """RANSAC plane ``n . p + d = 0`` through camera-frame points (N, 3), ``n`` facing up.
-
-    :func:`~armvision.perception.objects.fit_plane_ransac` on at most ``max_score`` of the
-    points (keeps this ~1 ms), counting only planes whose normal has at least ``min_up`` along
-    the camera's up (-y), so walls and the bottle's own front are not taken for the table; then
-    a least-squares refit on the inliers among all points. Returns (n, d, inlier count); count
-    0 if there is no such plane.
-    """
-    scored = (
-        points if len(points) <= max_score else points[rng.choice(len(points), max_score, False)]
-    )
-    try:
-        normal, offset, _ = fit_plane_ransac(
-            scored, inlier_m, hypotheses, rng, np.array([0.0, -1.0, 0.0]), math.acos(min_up)
-        )
-    except PerceptionError:
-        return np.array([0.0, -1.0, 0.0]), 0.0, 0
-    inliers = points[np.abs(points @ normal + offset) < inlier_m]
-    if len(inliers) < 3:
-        return np.array([0.0, -1.0, 0.0]), 0.0, 0
-    centroid = inliers.mean(axis=0)
-    normal = np.linalg.svd(inliers - centroid, full_matrices=False)[2][2]
-    if normal[1] > 0:
-        normal = -normal
-    return normal, float(-normal @ centroid), len(inliers)
-
-
 def _ray(intr: Intrinsics, u: float, v: float) -> Array:
     """Direction (x, y, 1) of the ray through pixel (u, v)."""
     return deproject(intr, [[u, v]], [1.0])[0]
@@ -364,12 +332,26 @@ class LiquidLevelMeter:
             )
         uv = np.column_stack([uu * 3 + ca, vv * 3 + ra]).astype(float)
         pts = deproject(intr, uv, depth[vv, uu])
-        up, offset, count = fit_table_plane(pts, self._rng)
-        if count < 20:
+        # RANSAC on at most 1500 points (keeps this ~1 ms), counting only planes within 60° of
+        # the camera's up (-y), so walls and the bottle's own front are not taken for the
+        # table; then least-squares refits on the inliers, the second among all the points.
+        table = fit_plane(
+            pts,
+            0.006,
+            rng=self._rng,
+            hypotheses=64,
+            normal_prior=_UP_CAM,
+            max_tilt_rad=math.acos(0.5),
+            max_scored=1500,
+            refits=2,
+            toward=_UP_CAM,
+        )
+        if table is None or table.fitted < 20:
             raise PerceptionError(
                 "no table plane in the depth around the container: the container must stand"
                 " on a flat surface the camera sees (or use method='hough')"
             )
+        up, offset = table.normal, table.offset
         # The camera's foot on the table; "away" is horizontal from it towards the bottle.
         cam_foot = -offset * up
         if geometry.centre_cam is not None:

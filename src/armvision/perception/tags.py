@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.errors import PerceptionError
 from armvision.geometry import make_T, rotation_between
+from armvision.perception.fitting import fit_plane
 
 Array = NDArray[np.float64]
 
@@ -140,40 +141,6 @@ def _ippe_solutions(object_points: Array, xy: Array) -> list[tuple[Array, float]
     for rvec, tvec, err in zip(rvecs, tvecs, np.ravel(errors)):
         out.append((make_T(cv2.Rodrigues(rvec)[0], np.ravel(tvec)), float(err)))
     return out
-
-
-@dataclass(frozen=True)
-class PlaneFit:
-    """A plane n . p = d through depth points; n has unit length and points away from the camera."""
-
-    normal: Array
-    offset: float
-    rms: float
-    count: int
-
-
-def fit_plane(points: Array, inlier_m: float = 0.004) -> PlaneFit | None:
-    """Least-squares plane (SVD of centred points), refitted once without outliers.
-
-    Outliers are points farther than max(3 x 1.4826 x MAD, ``inlier_m``) from the first fit:
-    depth speckle and the edge of the tag plate.
-    """
-    if len(points) < 3:
-        return None
-    keep = np.ones(len(points), dtype=bool)
-    for _ in range(2):
-        centroid = points[keep].mean(axis=0)
-        _, _, vt = np.linalg.svd(points[keep] - centroid, full_matrices=False)
-        normal = vt[2]
-        residual = (points - centroid) @ normal
-        mad = np.median(np.abs(residual[keep] - np.median(residual[keep])))
-        keep = np.abs(residual) <= max(3.0 * 1.4826 * mad, inlier_m)
-        if keep.sum() < 3:
-            return None
-    if normal @ centroid < 0.0:
-        normal = -normal
-    rms = float(np.sqrt(np.mean(((points[keep] - centroid) @ normal) ** 2)))
-    return PlaneFit(normal, float(normal @ centroid), rms, int(keep.sum()))
 
 
 def _tag_depth_points(intr: Intrinsics, depth: NDArray, corners: Array, shrink: float) -> Array:
@@ -304,20 +271,22 @@ class TagDetector:
 
         if depth is not None and self.refine_with_depth:
             points = _tag_depth_points(intr, depth, corners, shrink=0.8)
-            plane = fit_plane(points) if len(points) >= self.min_depth_points else None
+            plane = None
+            if len(points) >= self.min_depth_points:
+                # No RANSAC: the plate fills the quad; a refit drops speckle and its edge.
+                plane = fit_plane(points, 0.004, refits=2, robust=True)
             if plane is not None:
+                into = -plane.normal  # the plate's normal away from the camera, as the tag's z
                 # The PnP solution whose tag normal (z, into the tag) agrees with the plane.
-                angles = [
-                    np.arccos(np.clip(T[:3, 2] @ plane.normal, -1.0, 1.0)) for T, _ in solutions
-                ]
+                angles = [np.arccos(np.clip(T[:3, 2] @ into, -1.0, 1.0)) for T, _ in solutions]
                 best = int(np.argmin(angles))
                 if angles[best] <= self.max_normal_disagreement:
                     flipped = best != 0
                     T_pnp = solutions[best][0]
-                    normal = self._fused_normal(T_pnp, corners, intr, points, plane)
+                    normal = self._fused_normal(T_pnp, corners, intr, points, into, plane.rms)
                     R = rotation_between(T_pnp[:3, 2], normal) @ T_pnp[:3, :3]
                     ray = np.append(_normalised(intr, np.asarray(raw.center, float)[None])[0], 1.0)
-                    p_centre = ray * plane.offset / (plane.normal @ ray)
+                    p_centre = ray * plane.offset / (into @ ray)
                     T_cam_tag = make_T(R, p_centre)
                     refined, plane_rms = True, plane.rms
 
@@ -336,7 +305,13 @@ class TagDetector:
         )
 
     def _fused_normal(
-        self, T_pnp: Array, corners: Array, intr: Intrinsics, points: Array, plane: PlaneFit
+        self,
+        T_pnp: Array,
+        corners: Array,
+        intr: Intrinsics,
+        points: Array,
+        plane_normal: Array,
+        plane_rms: float,
     ) -> Array:
         """Tag normal from PnP and the depth plane, each weighted by its covariance.
 
@@ -365,19 +340,19 @@ class TagDetector:
         try:
             C_pose = sigma_px**2 * np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
-            return plane.normal
+            return plane_normal
         # dn = dtheta x n, so the tilt along a is dtheta . (n x a).
         J_tilt = np.stack([np.cross(n, a), np.cross(n, b)])
         C_pnp = J_tilt @ C_pose[:3, :3] @ J_tilt.T
         spread = points - points.mean(axis=0)
         A = np.column_stack([spread @ a, spread @ b])
-        sigma_r = max(plane.rms, 1e-4)
+        sigma_r = max(plane_rms, 1e-4)
         try:
             C_depth = sigma_r**2 * np.linalg.inv(A.T @ A)
             gain = C_pnp @ np.linalg.inv(C_pnp + C_depth)
         except np.linalg.LinAlgError:
             return n
-        d = np.array([plane.normal @ a, plane.normal @ b])
+        d = np.array([plane_normal @ a, plane_normal @ b])
         tilt = gain @ d
         fused = n + tilt[0] * a + tilt[1] * b
         return fused / np.linalg.norm(fused)
