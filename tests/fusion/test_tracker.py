@@ -216,7 +216,7 @@ def test_association_is_globally_optimal_not_greedy():
 
 
 def test_measurement_from_detection_maps_the_camera_point_into_the_base_frame():
-    class Detection:  # the fields of armvision.perception.objects.Detection that are used
+    class Detection:  # the fields of armvision.perception.detection.Detection that are used
         label, score = "cup", 0.7
         center_cam = np.array([0.05, 0.1, 0.7])
 

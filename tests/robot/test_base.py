@@ -20,10 +20,10 @@ class RecordingGripper(GripperBase):
     def __init__(self) -> None:
         self.position = 0.057
 
-    def open(self) -> None:
+    def open(self, delay: float | None = None) -> None:
         self.position = 0.057
 
-    def close(self) -> None:
+    def close(self, delay: float | None = None) -> None:
         self.position = 0.021
 
     def get_finger_position(self) -> float:

@@ -149,7 +149,7 @@ class _Owned:
         self.closed_while_camera_ran: bool | None = None
 
     def close(self) -> None:
-        thread = self.system_ref[0]._threads["camera"]
+        thread = self.system_ref[0]._threads.threads["camera"]
         self.closed_while_camera_ran = thread.is_alive()
 
 

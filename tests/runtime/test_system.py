@@ -14,7 +14,7 @@ import pytest
 from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ArmvisionError
-from armvision.runtime.system import TaskError
+from armvision.runtime.context import TaskError
 from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.grab import grab
 
@@ -146,7 +146,7 @@ def test_a_failing_stage_reports_and_carries_on() -> None:
     class Broken:
         calls = 0
 
-        def detect(self, frame):
+        def detect(self, frame, context=None):
             Broken.calls += 1
             raise RuntimeError("model file missing")
 

@@ -73,7 +73,7 @@ def test_calibrate_while_running_switches_the_system_to_the_new_pose(tmp_path) -
         assert result["used"] >= config.calibration.min_samples
         assert np.array_equal(system.T_base_cam, system.calibration.T_base_cam)
         assert np.array_equal(system.fusion.T_base_cam, system.calibration.T_base_cam)
-        assert np.array_equal(system.object_detector.T_base_cam, system.calibration.T_base_cam)
+        assert np.array_equal(system.snapshot().T_base_cam, system.calibration.T_base_cam)
         assert system.calibration.joint_offsets_rad is not None
         assert str(path) in system.calibration.source
         # The encoder offsets now corrected: the fused ee sits on the true one.

@@ -163,7 +163,7 @@ def run_demo(
 ) -> DemoReport:
     """Run the demo (see the module docstring); the report says what passed."""
     from armvision.bench.snapshot import _write_png
-    from armvision.bench.system import sim_system
+    from armvision.bench.system import sim_system, sim_world
     from armvision.runtime.build import load_calibration
     from armvision.runtime.view import annotated
     from armvision.tasks.analyze import analyze
@@ -179,7 +179,7 @@ def run_demo(
         calibration = _calibrate(config, seed, scene.T_base_cam, report, say)
 
     with sim_system(config, seed, scene=scene, calibration=calibration) as system:
-        world = system.world
+        world = sim_world(system)
         truth = {o.spec.name: o for o in world.objects()}
         say(f"detecting for {DETECT_S:.0f} s")
         system.pump(system.clock() + DETECT_S)

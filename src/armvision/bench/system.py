@@ -8,6 +8,7 @@ below it knows that the arm or the camera is simulated.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -92,7 +93,7 @@ def sim_system(
     mode: Literal["lockstep", "realtime"] = "lockstep",
     scene: SceneSpec | None = None,
     calibration: CalibrationStatus | None = None,
-    arm_seed: object = None,
+    arm_seed: int | Sequence[int] | None = None,
     **detectors,
 ) -> System:
     """A System on a fresh SimWorld of ``seed`` (``scene`` overrides the seed's scene).
@@ -118,3 +119,11 @@ def sim_system(
         owns=(arm, world),
         **detectors,
     )
+
+
+def sim_world(system: System) -> SimWorld:
+    """The SimWorld under a system :func:`sim_system` built (its truth for reports)."""
+    world = system.world
+    if not isinstance(world, SimWorld):
+        raise TypeError("this system does not run on the simulated bench")
+    return world

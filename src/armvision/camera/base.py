@@ -13,8 +13,12 @@ class Camera(Protocol):
 
     ``start()`` opens the device (or renderer), ``read(timeout_s)`` returns the newest frame,
     blocking until one newer than the last read exists, and ``stop()`` releases it. Use as a
-    context manager: ``with camera: frame = camera.read()``.
+    context manager: ``with camera: frame = camera.read()``. ``serial``: the device's serial
+    number (saved with a calibration), None if it has none.
     """
+
+    @property
+    def serial(self) -> str | None: ...
 
     @property
     def intrinsics(self) -> Intrinsics: ...

@@ -8,7 +8,7 @@ import dataclasses
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from armvision.cli.args import (
     _say,
@@ -24,9 +24,10 @@ from armvision.cli.args import (
     writable_dir,
 )
 from armvision.cli.evaluate import cmd_eval_follow, cmd_eval_grab
-from armvision.config import (
-    Config,
-)
+from armvision.config import Config
+
+if TYPE_CHECKING:
+    from armvision.runtime.system import System
 
 #: Seconds the stages run before a task starts, so tracks are confirmed and tags seen.
 WARM_UP_S = 1.5
@@ -52,18 +53,19 @@ def _system(args: argparse.Namespace, config: Config):
 
     if args.real:
         return build.real_system(config, args.calibration or config.calibration.file)
+    from armvision.bench.system import calibrate_empty_table, sim_system
+    from armvision.sim.world import generate_scene
+
     if args.calibration == "truth":
         calibration = None  # the simulator's camera pose
     elif args.calibration:
         calibration = build.load_calibration(args.calibration)
     else:
-        from armvision.sim.world import generate_scene
-
         _say("calibrating the simulated camera with the gripper tag (empty table)")
         T_base_cam = generate_scene(config, args.seed).T_base_cam
-        calibration, _ = build.calibrate_empty_table(config, args.seed, T_base_cam)
+        calibration, _ = calibrate_empty_table(config, args.seed, T_base_cam)
     mode = "realtime" if args.realtime else "lockstep"
-    return build.sim_system(config, args.seed, mode=mode, calibration=calibration)
+    return sim_system(config, args.seed, mode=mode, calibration=calibration)
 
 
 def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any) -> int:
@@ -95,8 +97,10 @@ def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any)
     return 0 if status.phase == "succeeded" else 1
 
 
-def _sim_truth(system) -> dict[str, Any]:
-    world = system.world
+def _sim_truth(system: System) -> dict[str, Any]:
+    from armvision.bench.system import sim_world
+
+    world = sim_world(system)
     return {
         "held_object": world.held_object(),
         "objects": [

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -44,16 +44,16 @@ def eval_config(config: Config) -> Config:
 
 
 def run_trial(
-    config: Config, scene_seed: int, calibration: Any, arm_seed: object = None
+    config: Config, scene_seed: int, calibration: Any, arm_seed: int | Sequence[int] | None = None
 ) -> dict[str, Any]:
     """One grab in the scene of ``scene_seed``; the simulator's verdict and the task's report."""
-    from armvision.bench.system import sim_system
+    from armvision.bench.system import sim_system, sim_world
     from armvision.tasks.grab import grab
 
     with sim_system(
         eval_config(config), scene_seed, calibration=calibration, arm_seed=arm_seed
     ) as system:
-        world = system.world
+        world = sim_world(system)
         start_z = {o.spec.name: float(o.T_base_obj[2, 3]) for o in world.objects()}
         start_xy = {o.spec.name: o.T_base_obj[:2, 3].copy() for o in world.objects()}
         status = system.run_task("grab", grab)

@@ -74,7 +74,9 @@ class FusionSnapshot:
     cycle; ``cycles``: cycles run; ``overruns``: cycles that started late by more than a
     period; ``error``: why the thread stopped, if it failed; ``ee_stats``: the filter's
     counters (updates, gated, replayed, dropped); ``drift``: the camera against the encoders
-    (has the camera moved since calibration?).
+    (has the camera moved since calibration?); ``T_base_cam``: the camera pose the loop
+    maps detections with, the calibration (its prior) as the end-effector filter refines it
+    from the gripper tag; the one camera pose every consumer of a snapshot should use.
     """
 
     time: float
@@ -88,6 +90,7 @@ class FusionSnapshot:
     error: str | None
     ee_stats: FilterStats
     drift: DriftStatus = dataclasses.field(default_factory=DriftStatus)
+    T_base_cam: np.ndarray | None = None
 
 
 class FusionLoop:
@@ -243,6 +246,7 @@ class FusionLoop:
                 stats.late_dropped,
             ),
             drift=self.drift.status,
+            T_base_cam=_read_only(self.ee_filter.T_base_cam_refined()),
         )
 
     def snapshot(self) -> FusionSnapshot:
@@ -303,6 +307,11 @@ class FusionLoop:
             snapshot = self.snapshot()
             with self._lock:
                 self._snapshot = _replace_running(snapshot, False, self._error)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
 
 
 def _replace_running(snapshot: FusionSnapshot, running: bool, error: str | None) -> FusionSnapshot:

@@ -89,10 +89,15 @@ class TrapezoidalTrajectory:
 
 @runtime_checkable
 class Gripper(Protocol):
-    """The gripper: two fingers on one motor. Positions are one finger's travel, metres."""
+    """The gripper: two fingers on one motor. Positions are one finger's travel, metres.
 
-    def open(self) -> None: ...
-    def close(self) -> None: ...
+    ``open``/``close`` command the fingers and then wait ``delay`` seconds for them to get
+    there (or onto an object); ``delay=None`` waits the backend's own time (Interbotix's
+    gripper delay, 1 s), ``delay=0`` returns at once so the caller can wait interruptibly.
+    """
+
+    def open(self, delay: float | None = None) -> None: ...
+    def close(self, delay: float | None = None) -> None: ...
     def grasp(self) -> None: ...
     def release(self) -> None: ...
     def get_finger_position(self) -> float: ...
@@ -100,11 +105,27 @@ class Gripper(Protocol):
 
 @runtime_checkable
 class Arm(Protocol):
-    """What armvision needs from an arm, simulated or real (see ARCHITECTURE.md, Interfaces)."""
+    """Everything armvision asks of an arm, simulated or real; a new backend implements this
+    (most of it comes with :class:`ArmBase`, which leaves three hooks to write).
+
+    ``model``: its kinematics; ``gripper``; ``last_error``: why the last command was refused
+    (None if it was not). Commands are checked before anything moves and return False, with
+    the arm where it was, when a check fails. ``blocking=False`` starts a move and returns; the
+    runtime then polls ``moving`` / ``motion_remaining()`` and waits ``settle_time`` more, so
+    that Stop (``halt()``) can end any wait. ``close()`` releases the backend's connection.
+    """
 
     model: ArmModel
     gripper: Gripper
     last_error: str | None
+    #: Seconds the servos take to come to rest after a move's profile ends.
+    settle_time: float
+
+    @property
+    def moving(self) -> bool: ...
+    def motion_remaining(self) -> float: ...
+    def halt(self) -> None: ...
+    def close(self) -> None: ...
 
     def go_to_home_pose(
         self,
@@ -165,10 +186,10 @@ class GripperBase(abc.ABC):
         self.open()
 
     @abc.abstractmethod
-    def open(self) -> None: ...
+    def open(self, delay: float | None = None) -> None: ...
 
     @abc.abstractmethod
-    def close(self) -> None: ...
+    def close(self, delay: float | None = None) -> None: ...
 
     @abc.abstractmethod
     def get_finger_position(self) -> float: ...
@@ -182,6 +203,8 @@ class ArmBase(abc.ABC):
     """
 
     gripper: Gripper
+    #: A real arm's moves end when their profile does (Interbotix waits the same way).
+    settle_time: float = 0.0
 
     def __init__(
         self,
@@ -214,6 +237,9 @@ class ArmBase(abc.ABC):
     def _now(self) -> float:
         """The clock servo-loop step limits are measured on (a simulation overrides it)."""
         return time.monotonic()
+
+    def close(self) -> None:  # noqa: B027 - a hook with nothing to do by default, not abstract
+        """Release the backend's connection (default: nothing to release)."""
 
     # ---------------------------------------------------------------- queries
 

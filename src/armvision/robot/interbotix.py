@@ -98,11 +98,11 @@ class InterbotixGripper(GripperBase):
         self._bot = bot
         self.delay_s = delay_s
 
-    def close(self) -> None:
-        self._bot.gripper.grasp(delay=self.delay_s)
+    def close(self, delay: float | None = None) -> None:
+        self._bot.gripper.grasp(delay=self.delay_s if delay is None else delay)
 
-    def open(self) -> None:
-        self._bot.gripper.release(delay=self.delay_s)
+    def open(self, delay: float | None = None) -> None:
+        self._bot.gripper.release(delay=self.delay_s if delay is None else delay)
 
     def get_finger_position(self) -> float:
         """Left finger travel from the centre line, metres (Interbotix ``left_finger`` joint)."""
@@ -186,3 +186,7 @@ class InterbotixArm(ArmBase):
         """Stop the ROS node (the arm holds its last pose)."""
         self.bot.shutdown()
         time.sleep(0.1)
+
+    def close(self) -> None:
+        """The Arm interface's release: :meth:`shutdown`."""
+        self.shutdown()

@@ -13,7 +13,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, Literal
@@ -24,8 +24,8 @@ from armvision.camera.frames import RGBDFrame
 from armvision.fusion.drift import DriftStatus
 from armvision.fusion.loop import FusionSnapshot
 from armvision.fusion.tracker import TrackState
+from armvision.perception.detection import Detection
 from armvision.perception.liquid import LiquidLevel
-from armvision.perception.objects import Detection
 from armvision.perception.tags import TagDetection
 
 TaskPhase = Literal["idle", "queued", "running", "succeeded", "failed", "stopped"]
@@ -178,11 +178,10 @@ def average_levels(track_id: int, levels: list[tuple[float, LiquidLevel]]) -> Li
     fill = float(np.average(fills, weights=conf))
     std = float(math.sqrt(np.average((fills - fill) ** 2, weights=conf)))
     colours = [lv.colour for _, lv in levels if lv.colour is not None]
-    colour = (
-        tuple(int(c) for c in np.median(np.array(colours), axis=0))  # type: ignore[misc]
-        if len(colours) * 2 > len(levels)
-        else None
-    )
+    colour: tuple[int, int, int] | None = None
+    if len(colours) * 2 > len(levels):
+        r, g, b = (int(c) for c in np.median(np.array(colours), axis=0))
+        colour = (r, g, b)
     return LiquidEstimate(
         track_id,
         fill,
@@ -294,6 +293,14 @@ class SystemState:
     finger_position: float | None
 
     @property
+    def T_base_cam(self) -> np.ndarray:
+        """The camera pose the system works with now: the calibration (``calibration.T_base_cam``,
+        its prior) as the fusion loop refines it from the gripper tag. Detections, tracks and
+        every task map the camera into the base frame with this one pose."""
+        refined = self.fusion.T_base_cam
+        return self.calibration.T_base_cam if refined is None else refined
+
+    @property
     def drift(self) -> DriftStatus:
         """Has the camera moved since calibration (the gripper tag against the encoders)?"""
         return self.fusion.drift
@@ -308,8 +315,8 @@ class SystemState:
 
     def track_of(self, detection: Detection, within: float = ASSOCIATION_M) -> TrackState | None:
         """The confirmed track of the detection's label nearest to it (in the base frame, by
-        the running calibration), if within ``within`` metres."""
-        T = self.calibration.T_base_cam
+        the camera pose the system works with), if within ``within`` metres."""
+        T = self.T_base_cam
         p = T[:3, :3] @ np.asarray(detection.center_cam, dtype=float) + T[:3, 3]
         same = [t for t in self.fusion.tracks if t.label == detection.label]
         if not same:
@@ -376,7 +383,7 @@ class StateStore:
                 liquid[track_id] = estimate
             self._pieces.liquid = liquid
 
-    def keep_liquid(self, track_ids: set[int]) -> None:
+    def keep_liquid(self, track_ids: Collection[int]) -> None:
         """Forget the liquid estimates of tracks that no longer exist."""
         with self._lock:
             self._pieces.liquid = {k: v for k, v in self._pieces.liquid.items() if k in track_ids}

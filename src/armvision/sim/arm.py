@@ -16,6 +16,7 @@ servos track the *true* angle, so commanded poses are reached exactly while the 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -80,7 +81,7 @@ class SimArm(ArmBase):
         encoder_noise_deg: float | None = None,
         encoder_bias_deg: float | None = None,
         settle_time: float = 0.05,
-        seed: int | None = None,
+        seed: int | Sequence[int] | None = None,
     ) -> None:
         robot, sim = world.config.robot, world.config.sim
         super().__init__(

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from armvision.runtime.system import TaskContext, TaskError
+from armvision.runtime.context import TaskContext, TaskError
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from armvision.calibration.procedure import pose_errors
 from armvision.calibration.quality import check_quality
 from armvision.errors import CalibrationError
 from armvision.runtime.build import result_status
-from armvision.runtime.system import TaskContext, TaskError
+from armvision.runtime.context import TaskContext, TaskError
 
 log = logging.getLogger(__name__)
 

@@ -69,6 +69,7 @@ from starlette.requests import ClientDisconnect
 
 from armvision.config import Config
 from armvision.errors import ArmvisionError
+from armvision.geometry import pose_error
 from armvision.runtime.state import SystemState
 from armvision.runtime.system import DETECTORS, System
 from armvision.runtime.view import annotated, depth_image
@@ -581,7 +582,11 @@ def state_payload(state: SystemState, system: System, mode: Mode) -> dict[str, A
                 "height": int(frame.color.shape[0]),
             },
             "arm": arm,
-            "calibration": {**state.calibration.to_dict(), "drift": state.drift.to_dict()},
+            "calibration": {
+                **state.calibration.to_dict(),
+                "drift": state.drift.to_dict(),
+                "camera": camera_pose_dict(state),
+            },
             "health": {name: h.to_dict() for name, h in state.health.items()},
             "detectors": dict(state.detectors),
             "tracks": tracks,
@@ -594,6 +599,18 @@ def state_payload(state: SystemState, system: System, mode: Mode) -> dict[str, A
             "actions": action_states(state),
         }
     )
+
+
+def camera_pose_dict(state: SystemState) -> dict[str, Any]:
+    """The camera pose the system works with (the calibration refined by fusion), and how far
+    the refinement has moved it from the calibration."""
+    T = state.T_base_cam
+    dp, dr = pose_error(T, state.calibration.T_base_cam)
+    return {
+        "T_base_cam": np.asarray(T).tolist(),
+        "from_calibration_mm": round(1000.0 * float(dp), 2),
+        "from_calibration_deg": round(math.degrees(float(dr)), 3),
+    }
 
 
 def action_states(state: SystemState) -> dict[str, dict[str, Any]]:

@@ -309,6 +309,16 @@ function renderCalibration(cal) {
   setText($('cal-residual'), isNum(cal.residual_mm) ? cal.residual_mm.toFixed(2) + ' mm' : '—');
   const off = cal.joint_offsets_deg;
   setText($('cal-offsets'), Array.isArray(off) ? off.map((v) => fix(v, 2)).join('  ') + ' deg' : 'none');
+  // The camera pose in use: the calibration as fusion refines it from the gripper tag.
+  const cam = cal.camera || {};
+  const T = cam.T_base_cam;
+  setText(
+    $('cal-camera'),
+    Array.isArray(T)
+      ? `x ${fix(T[0][3], 3)} y ${fix(T[1][3], 3)} z ${fix(T[2][3], 3)} m · ` +
+          `${fix(cam.from_calibration_mm, 1)} mm, ${fix(cam.from_calibration_deg, 2)} deg from the calibration`
+      : '—'
+  );
   // Has the camera moved since calibration? The gripper tag as seen against the encoders.
   const d = cal.drift || {};
   setText(
