@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from armvision.geometry import make_T, pose_error, rot_y, rot_z, rotation_between
+from armvision.geometry import make_T, pose_error, rot_y, rot_z, rotation_between, skew
 from armvision.robot.kinematics import (
     ORIENTATION_TOLERANCE_RAD,
     POSITION_TOLERANCE_M,
@@ -22,6 +22,7 @@ from armvision.robot.kinematics import (
     ik,
     ik_solutions,
     jacobian_space,
+    point_jacobian,
 )
 
 # (parent-to-child translation, joint axis) from the vx300s URDF, base_link to gripper_link.
@@ -94,6 +95,26 @@ def test_space_jacobian_matches_modern_robotics_and_finite_differences():
             V = dT @ np.linalg.inv(T)
             twist = np.array([V[2, 1], V[0, 2], V[1, 0], *V[:3, 3]])
             np.testing.assert_allclose(J[:, i], twist, atol=1e-6)
+
+
+def test_point_jacobian_is_fk_and_its_finite_differences():
+    """The ee point's Jacobian (the one fusion and the follow servo use) against central
+    differences of fk at random joint vectors: Jv columns are dp/dq_i, Jw columns omega_i
+    with [omega_i] = dR/dq_i R^T; and against the space Jacobian, Jv = J_v,s - [p] J_w."""
+    h = 1e-7
+    for q in random_configs(50, seed=5):
+        T, Jv, Jw = point_jacobian(q)
+        np.testing.assert_allclose(T, fk(q), atol=1e-12)
+        for i in range(6):
+            dq = np.zeros(6)
+            dq[i] = h
+            T0, T1 = fk(q - dq), fk(q + dq)
+            np.testing.assert_allclose(Jv[:, i], (T1[:3, 3] - T0[:3, 3]) / (2 * h), atol=1e-7)
+            W = (T1[:3, :3] - T0[:3, :3]) / (2 * h) @ T[:3, :3].T
+            np.testing.assert_allclose(Jw[:, i], [W[2, 1], W[0, 2], W[1, 0]], atol=1e-7)
+        J = jacobian_space(q)
+        np.testing.assert_allclose(Jw, J[:3], atol=1e-12)
+        np.testing.assert_allclose(Jv, J[3:] - skew(T[:3, 3]) @ J[:3], atol=1e-12)
 
 
 def test_ik_round_trip_on_10000_random_configurations():

@@ -76,7 +76,7 @@ from armvision.camera.frames import depth_rms_error
 from armvision.config import FusionConfig
 from armvision.fusion import FusionError
 from armvision.geometry import inv_T, make_T, skew
-from armvision.robot.kinematics import VX300S, ArmModel, fk, joint_exponentials
+from armvision.robot.kinematics import VX300S, ArmModel, fk, point_jacobian
 
 Array = NDArray[np.float64]
 
@@ -200,37 +200,6 @@ def _motion_model(dt: float, order: int, density: float) -> tuple[Array, Array]:
         raise FusionError(f"motion model order must be 2 (cv) or 3 (ca), not {order}")
     eye3 = np.eye(3)
     return np.kron(F1, eye3), np.kron(Q1, eye3)
-
-
-def point_jacobian(q: ArrayLike, model: ArmModel = VX300S) -> tuple[Array, Array, Array]:
-    """(T_base_ee, Jv, Jw): pose and the 3 x n linear and angular Jacobians of the ee point.
-
-    The space Jacobian's columns are J_i = Ad(T_i-1) S_i with T_i-1 = e^[S1]q1 ...
-    e^[Si-1]qi-1 (Modern Robotics eq. 5.11): omega_i = R w_i, v_i = p x omega_i + R v_i, and
-    T_base_ee = T_n M (eq. 4.14). The ee point moves at v_s + omega x p_ee, so
-    Jv = J_v,s - [p_ee]x Jw. One pass over the joints gives the pose and both Jacobians (the
-    fusion loop needs them at 100 Hz; ``fk`` + ``jacobian_space`` would compute the joint
-    exponentials twice). Equal to those to round-off (tests/fusion/test_kalman.py).
-    """
-    q = np.asarray(q, dtype=float)
-    # The kinematics module's vectorised Rodrigues formula for every joint at once.
-    E = joint_exponentials(model, q[None])[0]
-    n = model.dof
-    T_prev = np.empty((n, 4, 4))
-    T = np.eye(4)
-    for i in range(n):
-        T_prev[i] = T
-        T = T @ E[i]
-    T_base_ee = T @ model.M
-    w, v = model.Slist[:, :3], model.Slist[:, 3:]
-    R = T_prev[:, :3, :3]
-    Jw = np.einsum("kij,kj->ki", R, w)
-    # (p_i - p_ee) x omega_i for every column at once (np.cross is slow on arrays this small).
-    r = T_prev[:, :3, 3] - T_base_ee[:3, 3]
-    Jv = np.einsum("kij,kj->ki", R, v) + (
-        r[:, [1, 2, 0]] * Jw[:, [2, 0, 1]] - r[:, [2, 0, 1]] * Jw[:, [1, 2, 0]]
-    )
-    return T_base_ee, Jv.T, Jw.T
 
 
 def encoder_joint_variance(noise_rad: float) -> float:

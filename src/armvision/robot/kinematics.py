@@ -1,4 +1,4 @@
-"""ViperX-300s kinematics: model constants, forward kinematics, space Jacobian, inverse kinematics.
+"""ViperX-300s kinematics: model constants, forward kinematics, Jacobians, inverse kinematics.
 
 Numbers are Interbotix's ``mr_descriptions.py`` (space frame ``base_link``, end effector
 ``ee_gripper_link``) and the vx300s URDF for limits, home and sleep poses.
@@ -179,6 +179,39 @@ def jacobian_space(q: ArrayLike, model: ArmModel = VX300S) -> Array:
         J[3:, i] = skew(p) @ (R @ w) + R @ v
         T = T @ E[i]
     return J
+
+
+def point_jacobian(q: ArrayLike, model: ArmModel = VX300S) -> tuple[Array, Array, Array]:
+    """(T_base_ee, Jv, Jw): pose and the 3 x n linear and angular Jacobians of the ee point.
+
+    The space Jacobian's columns are J_i = Ad(T_i-1) S_i with T_i-1 = e^[S1]q1 ...
+    e^[Si-1]qi-1 (Modern Robotics eq. 5.11): omega_i = R w_i, v_i = p x omega_i + R v_i, and
+    T_base_ee = T_n M (eq. 4.14). The ee point moves at v_s + omega x p_ee, so
+    Jv = J_v,s - [p_ee]x Jw: p_dot = Jv qdot is the velocity of the ee point and
+    omega = Jw qdot the ee's angular velocity, both in the base frame. One pass over the
+    joints gives the pose and both Jacobians (the fusion loop needs them at 100 Hz, the follow
+    servo at 50 Hz; ``fk`` + ``jacobian_space`` would compute the joint exponentials twice).
+    Equal to those to round-off, and to finite differences of ``fk``
+    (tests/robot/test_kinematics.py).
+    """
+    q = np.asarray(q, dtype=float)
+    E = joint_exponentials(model, q[None])[0]
+    n = model.dof
+    T_prev = np.empty((n, 4, 4))
+    T = np.eye(4)
+    for i in range(n):
+        T_prev[i] = T
+        T = T @ E[i]
+    T_base_ee = T @ model.M
+    w, v = model.Slist[:, :3], model.Slist[:, 3:]
+    R = T_prev[:, :3, :3]
+    Jw = np.einsum("kij,kj->ki", R, w)
+    # (p_i - p_ee) x omega_i for every column at once (np.cross is slow on arrays this small).
+    r = T_prev[:, :3, 3] - T_base_ee[:3, 3]
+    Jv = np.einsum("kij,kj->ki", R, v) + (
+        r[:, [1, 2, 0]] * Jw[:, [2, 0, 1]] - r[:, [2, 0, 1]] * Jw[:, [1, 2, 0]]
+    )
+    return T_base_ee, Jv.T, Jw.T
 
 
 # --------------------------------------------------------------------------- inverse kinematics
