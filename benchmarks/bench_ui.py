@@ -29,7 +29,7 @@ from websockets.sync.client import connect
 
 from armvision.bench.system import sim_system
 from armvision.config import Config
-from armvision.sim.world import bench_scene
+from armvision.sim.scene import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen
 
 

@@ -14,11 +14,11 @@ from armvision.bench.system import calibrate_sim
 from armvision.calibration.procedure import solve_all
 from armvision.calibration.quality import assess, check_quality
 from armvision.calibration.sampling import PlannedPose, Sampler, circular_mean, phase1_plan
+from armvision.camera.placement import camera_pose_from_placement
 from armvision.config import CalibrationConfig, Config, SimConfig, TagConfig
 from armvision.errors import CalibrationError
 from armvision.geometry import make_T, pose_error
 from armvision.robot.tag_mount import R_EE_TAG
-from armvision.sim.world import camera_pose_from_placement
 
 # Encoder noise but no zero-offset bias: a waist offset is indistinguishable from a turn of
 # the base for any camera-based calibration (see README, "Calibration").

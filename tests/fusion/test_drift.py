@@ -10,12 +10,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from armvision.calibration.sampling import facing_pose
+from armvision.camera.placement import camera_pose_from_placement
 from armvision.config import CalibrationConfig, Config
 from armvision.fusion.drift import DriftMonitor, facing, rotation_reference
 from armvision.geometry import inv_T, make_T
 from armvision.robot.kinematics import fk, ik
 from armvision.robot.tag_mount import tag_mount
-from armvision.sim.world import camera_pose_from_placement
 
 T_BASE_CAM = camera_pose_from_placement(1.0, 0.0, 0.45, math.radians(30.0))
 T_EE_TAG = tag_mount((-0.1, 0.0, 0.03))
@@ -180,7 +180,7 @@ def _time_to_drift(system, limit_s: float) -> float | None:
 )
 def test_a_camera_moved_after_calibration_is_reported_and_grab_refuses(calibrated, move) -> None:
     from armvision.bench.system import sim_system
-    from armvision.sim.world import bench_scene
+    from armvision.sim.scene import bench_scene
     from armvision.tasks.grab import grab
 
     config, calibration = calibrated

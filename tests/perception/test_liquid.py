@@ -25,7 +25,7 @@ from armvision.perception.liquid import (
     hough_level,
     measure_liquid,
 )
-from armvision.sim.world import LIQUID_COLOURS
+from armvision.sim.scene import LIQUID_COLOURS
 
 INTR = Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5)
 

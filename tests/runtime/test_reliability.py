@@ -17,7 +17,8 @@ from armvision.perception.detection import NO_CONTEXT, Detection
 from armvision.perception.geometric import GeometricDetector
 from armvision.runtime.system import System
 from armvision.sim.arm import SimArm
-from armvision.sim.world import SimWorld, bench_scene
+from armvision.sim.scene import bench_scene
+from armvision.sim.world import SimWorld
 from armvision.tasks.basic import home
 
 

@@ -15,7 +15,7 @@ from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ArmvisionError
 from armvision.runtime.context import TaskError
-from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.grab import grab
 
 BOTTLE = ObjectSpec(

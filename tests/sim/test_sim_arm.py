@@ -15,7 +15,8 @@ from armvision.robot.base import Arm
 from armvision.robot.kinematics import VX300S, fk
 from armvision.sim.arm import SimArm, quantize_encoder
 from armvision.sim.camera import SimCamera
-from armvision.sim.world import ObjectSpec, SceneSpec, SimWorld, random_camera_pose
+from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.world import SimWorld
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,7 @@ import pytest
 
 from armvision.camera.base import Camera
 from armvision.camera.frames import RGBDFrame, project
+from armvision.camera.placement import camera_pose_from_placement
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, transform_points
 from armvision.perception.tags import pupil_detector
@@ -19,7 +20,7 @@ from armvision.sim.camera import (
     depth_rms_error,
     realsense_depth_model,
 )
-from armvision.sim.world import SimWorld, camera_pose_from_placement
+from armvision.sim.world import SimWorld
 
 #: (distance m, azimuth deg, height m, pitch deg): the paper's set-up and three others.
 PLACEMENTS = [

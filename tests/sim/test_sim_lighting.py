@@ -6,16 +6,18 @@ import numpy as np
 from tests.sim.helpers import config_with
 
 from armvision.sim._mujoco import mujoco
-from armvision.sim.world import Lighting, build_mjcf, generate_scene, random_lighting
+from armvision.sim.model import build_model
+from armvision.sim.scene import Lighting, generate_scene, random_lighting
 
 
 def test_default_scenes_keep_the_fixed_lighting() -> None:
     config = config_with()
     scene = generate_scene(config, 3)
     assert scene.lighting == Lighting()
-    xml, _ = build_mjcf(config, scene)
-    assert 'ambient="0.35 0.35 0.35" diffuse="0.45 0.45 0.45"' in xml
-    assert 'dir="0 0 -1"' in xml
+    model = build_model(config, scene)
+    np.testing.assert_allclose(model.vis.headlight.ambient, [0.35] * 3, rtol=1e-6)
+    np.testing.assert_allclose(model.vis.headlight.diffuse, [0.45] * 3, rtol=1e-6)
+    np.testing.assert_array_equal(model.light_dir[0], [0.0, 0.0, -1.0])
 
 
 def test_random_lighting_varies_and_leaves_the_rest_of_the_scene() -> None:
@@ -37,6 +39,6 @@ def test_random_lighting_is_in_range_and_compiles() -> None:
         assert 0.15 <= light.ambient <= 0.5 and 0.2 <= light.key <= 0.8
         assert np.isclose(np.linalg.norm(light.key_dir), 1.0) and light.key_dir[2] < 0
     config = config_with(randomize_lighting=True)
-    xml, files = build_mjcf(config, generate_scene(config, 1))
-    model = mujoco.MjModel.from_xml_string(xml, files)
+    model = build_model(config, generate_scene(config, 1))
     assert model.nlight == 1
+    assert model.light_type[0] == mujoco.mjtLightType.mjLIGHT_DIRECTIONAL

@@ -13,7 +13,7 @@ from armvision.bench.snapshot import false_colour_depth, write_snapshot
 from armvision.config import Config
 from armvision.errors import SimulationError
 from armvision.robot.kinematics import VX300S, fk
-from armvision.sim.world import generate_scene
+from armvision.sim.scene import generate_scene
 
 
 def test_snapshot_writes_colour_depth_and_ground_truth(tmp_path: Path) -> None:

@@ -13,13 +13,15 @@ import numpy as np
 import pytest
 from tests.sim.helpers import config_with
 
+from armvision.camera.placement import camera_pose_from_placement
 from armvision.config import Config
 from armvision.errors import SimulationError
 from armvision.geometry import pose_error
 from armvision.robot.kinematics import VX300S, fk
 from armvision.sim import world as world_module
 from armvision.sim._mujoco import mujoco
-from armvision.sim.world import SimWorld, camera_pose_from_placement, generate_scene
+from armvision.sim.scene import generate_scene
+from armvision.sim.world import SimWorld
 
 
 def _set_joints(world: SimWorld, q: np.ndarray) -> None:

@@ -14,7 +14,7 @@ import httpx
 from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.runtime.system import System
-from armvision.sim.world import bench_scene
+from armvision.sim.scene import bench_scene
 from armvision.ui.server import OperatorUI, Server, listen
 
 

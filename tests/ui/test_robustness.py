@@ -31,7 +31,7 @@ from armvision.bench.system import sim_system
 from armvision.config import Config
 from armvision.errors import ArmvisionError
 from armvision.runtime.system import DETECTORS, System
-from armvision.sim.world import bench_scene
+from armvision.sim.scene import bench_scene
 from armvision.ui.server import ACTIONS, TOKEN_ENV, OperatorUI, resolve_token
 
 from .conftest import LogRecords, captured_logs

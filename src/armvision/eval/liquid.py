@@ -3,7 +3,7 @@
 Scenes of 3-4 bottles each, built for this evaluation (not the default scene generator, whose
 fills stay within 10-90 %): fill uniform 0-100 % with one bottle in ten exactly empty and one
 in ten exactly full, every liquid colour of the simulator, radius 26-37 mm, height 16-24 cm,
-random camera placement and random lighting (``sim.world.random_lighting``). One frame per
+random camera placement and random lighting (``sim.scene.random_lighting``). One frame per
 scene. The container box is the projection of the true bottle geometry, so the liquid level
 is measured independently of any detector. Bottles less than ``min_visible`` visible (another
 object or the arm in front, or partly outside the image), judged from MuJoCo's segmentation
@@ -24,21 +24,22 @@ from armvision.camera.frames import Intrinsics, project
 from armvision.config import Config
 from armvision.geometry import inv_T
 from armvision.perception.liquid import LiquidLevelMeter
+from armvision.sim import names
 from armvision.sim._mujoco import mujoco
 from armvision.sim.camera import SimCamera
-from armvision.sim.world import (
+from armvision.sim.scene import (
+    BOTTLE_CAP_WIDENING,
+    BOTTLE_NECK_RADIUS,
     LIQUID_COLOURS,
     ObjectSpec,
     SceneSpec,
-    SimWorld,
     place_without_overlap,
     random_camera_pose,
     random_lighting,
 )
+from armvision.sim.world import SimWorld
 
-CAP_HEIGHT = 0.018  # m, as the simulator builds bottles (sim.world._object_xml)
-NECK_RADIUS = 0.42  # of the radius
-CAP_RADIUS = 0.42 * 1.12
+CAP_RADIUS = BOTTLE_NECK_RADIUS * BOTTLE_CAP_WIDENING  # of the radius, as the simulator builds
 
 
 def random_bottle(rng: np.random.Generator, name: str) -> ObjectSpec:
@@ -161,8 +162,10 @@ def evaluate_liquid(
                 T_cam_obj = T_cam_base @ state.T_base_obj
                 box, mask = true_box_and_mask(intr, spec, T_cam_obj)
                 geoms = [
-                    mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, f"{spec.name}_{p}")
-                    for p in ("wall", "neck", "cap", "liquid")
+                    mujoco.mj_name2id(
+                        world.model, mujoco.mjtObj.mjOBJ_GEOM, names.object_geom(spec.name, part)
+                    )
+                    for part in names.BOTTLE_PARTS
                 ]
                 inside = (
                     box[0] >= 2

@@ -1,7 +1,7 @@
 """Textures and procedural geometry for the simulated workspace.
 
 Everything here is a pure function returning arrays or bytes, so the scene builder in
-:mod:`armvision.sim.world` stays a description of the scene and these stay testable.
+:mod:`armvision.sim.model` stays a description of the scene and these stay testable.
 
 AprilTag textures come from OpenCV's ``DICT_APRILTAG_36h11`` (the same codes as the AprilTag
 library, so pupil-apriltags decodes the same id). OpenCV draws the 8x8-cell black-bordered
@@ -157,11 +157,3 @@ def cup_profile(radius: float, height: float, wall: float) -> list[tuple[float, 
         (radius - wall, wall),
         (0.0, wall),
     ]
-
-
-def mjcf_floats(values: NDArray[np.float64] | NDArray[np.int64]) -> str:
-    """Space-separated numbers for an MJCF attribute (vertex, face, texcoord lists)."""
-    flat = np.asarray(values).ravel()
-    if np.issubdtype(flat.dtype, np.integer):
-        return " ".join(str(int(v)) for v in flat)
-    return " ".join(f"{v:.9g}" for v in flat)
