@@ -24,16 +24,16 @@ from armvision.eval.liquid import true_box_and_mask
 from armvision.geometry import inv_T, make_T
 from armvision.perception.liquid import LiquidLevelMeter
 from armvision.robot.kinematics import VX300S
-from armvision.runtime.system import System, TaskContext, TaskStopped
-from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
-from armvision.tasks.analyze import (
-    COLOUR_PALETTE,
+from armvision.runtime.context import TaskContext, TaskStopped
+from armvision.runtime.system import System
+from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.tasks.analyze import analyze
+from armvision.tasks.colour import COLOUR_PALETTE, colour_name
+from armvision.tasks.spots import (
     IMAGE_MARGIN_PX,
     SPOT_CLEARANCE_M,
     Obstacle,
-    analyze,
     bottle_box,
-    colour_name,
     presentation_spot,
 )
 

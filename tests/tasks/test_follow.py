@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,16 +15,8 @@ from armvision.errors import ConfigError
 from armvision.eval.follow import evaluate_follow
 from armvision.geometry import make_T
 from armvision.robot.kinematics import VX300S, fk
-from armvision.tasks.follow import (
-    ServoGains,
-    TargetEstimator,
-    damped_least_squares,
-    desired_ee_pose,
-    desired_pose_and_twist,
-    ee_point_jacobian,
-    follow,
-    servo_step,
-)
+from armvision.tasks.follow import _TagTarget, desired_ee_pose, desired_pose_and_twist, follow
+from armvision.tasks.servo import ServoGains, TargetEstimator, damped_least_squares, servo_step
 
 #: A comfortable arm pose in front of the robot, away from limits and singularities.
 Q_MID = np.array([0.3, -0.4, 0.5, 0.2, 0.7, -0.1])
@@ -63,20 +56,6 @@ def test_damped_least_squares_by_hand() -> None:
     # A joint with twice the weight takes twice the motion of a redundant pair.
     qdot = damped_least_squares(np.array([[1.0, 1.0]]), [3.0], 0.0, weights=[2.0, 1.0])
     assert np.allclose(qdot, [2.0, 1.0])
-
-
-def test_point_jacobian_is_the_derivative_of_fk() -> None:
-    J = ee_point_jacobian(Q_MID)
-    h = 1e-6
-    for i in range(6):
-        dq = np.zeros(6)
-        dq[i] = h
-        T0, T1 = fk(Q_MID - dq), fk(Q_MID + dq)
-        dp = (T1[:3, 3] - T0[:3, 3]) / (2 * h)
-        dR = (T1[:3, :3] - T0[:3, :3]) / (2 * h) @ fk(Q_MID)[:3, :3].T  # = [omega]
-        omega = np.array([dR[2, 1], dR[0, 2], dR[1, 0]])
-        assert np.allclose(J[3:, i], dp, atol=1e-6)
-        assert np.allclose(J[:3, i], omega, atol=1e-6)
 
 
 def test_servo_step_moves_the_ee_as_commanded() -> None:
@@ -161,11 +140,22 @@ def test_estimator_follows_a_circle() -> None:
     assert np.allclose(p1, [0.4, 0.0, 0.0]) and np.allclose(v1, 0.0)
 
 
+def test_a_tag_is_mapped_with_the_camera_pose_of_each_state() -> None:
+    # The fusion loop refines the camera pose as it runs: each sighting is mapped into the
+    # base frame with the pose of the state it came in, not one taken at the start.
+    tag = SimpleNamespace(id=3, T_cam_tag=make_T(p=[0.0, 0.0, 0.5]))
+    source = _TagTarget(3)
+    for t, x_cam in ((1.0, 0.4), (1.1, 0.41)):
+        source.poll(SimpleNamespace(tags_time=t, tags=[tag], T_base_cam=make_T(p=[x_cam, 0, 0])))
+        assert np.allclose(source.newest(), [x_cam, 0.0, 0.5])
+    assert source.measurements == 2
+
+
 # --------------------------------------------------------------------------- lockstep sim
 
 
 def _tag_scene(config: Config, seed: int, tag_id: int, xy: tuple[float, float]):
-    from armvision.sim.world import LooseTag, generate_scene
+    from armvision.sim.scene import LooseTag, generate_scene
 
     scene = generate_scene(config, seed)
     return dataclasses.replace(
@@ -321,7 +311,7 @@ def test_eval_follow_short_run_servo_tracks_and_blocking_runs() -> None:
 
 def test_follows_a_bottle_track() -> None:
     """A bottle standing on the table, seen by the object stage only (10 Hz renders)."""
-    from armvision.sim.world import ObjectSpec, generate_scene
+    from armvision.sim.scene import ObjectSpec, generate_scene
 
     config = _config()
     config = dataclasses.replace(

@@ -38,8 +38,8 @@ from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.geometry import make_T, rot_z
 from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
+from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.state import SystemState
-from armvision.runtime.system import TaskContext, TaskError
 from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.

@@ -1,0 +1,219 @@
+"""Carrying a picked bottle for analyze: lift, carry level, stand it down, back off, take it up.
+
+:class:`Held` is the picked bottle (its radius from the closed fingers, its height, the table,
+the grasp and carry heights, where it came from). :class:`Carrier` moves the arm with it: every
+move is a straight line in short segments (:meth:`Carrier.straight`), each point reached level
+with the wrist unflipped (a held bottle stays upright; an empty gripper may pitch down up to
+:data:`EMPTY_MAX_PITCH_DEG`); :meth:`Carrier.put_down` carries the bottle above everything else
+on the table to a spot, stands it there and releases it, :meth:`Carrier.retreat` backs the
+gripper off behind it and up out of the camera's view, :meth:`Carrier.pick_up` grasps it again
+there, :meth:`Carrier.go_safe` goes to the grasp's safe start pose. A move that cannot be made
+raises :class:`Abort` with the reason.
+
+Units: metres, seconds, radians unless named ``_deg``; positions in the base frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from armvision.config import GrabConfig
+from armvision.fusion.tracker import TrackState
+from armvision.robot.kinematics import ik
+from armvision.runtime.context import TaskContext
+from armvision.tasks.grab import GRASP_MARGIN_M, HOVER_CLEARANCE_M, GrabResult, safe_start_pose
+from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
+
+Array = NDArray[np.float64]
+
+#: Interbotix vx300s fingers: each pad sits this far inboard of the finger joint's coordinate
+#: (pads 17 mm apart at the closed 0.021 m), so closed on a bottle finger = radius + this, m.
+PAD_INSET_M = 0.0125
+#: A finger-measured radius outside this range is not believed (the track's is used), m.
+RADIUS_RANGE_M = (0.01, 0.07)
+#: Releasing, the gripper backs off until its fingertips are this far from the bottle, m.
+BACKOFF_MARGIN_M = 0.02
+#: While carried, the held bottle's bottom stays this far above every other object's top, m.
+CARRY_CLEARANCE_M = 0.04
+#: The bottle is released this far above the table (it drops onto it), m.
+RELEASE_HEIGHT_M = 0.004
+#: Carrying speed along straight lines (a gentle ride for the liquid), m/s.
+CARRY_SPEED_M_S = 0.15
+#: Straight moves are split into segments at most this long, m.
+SEGMENT_M = 0.06
+#: With the gripper empty, a point the arm cannot reach level is reached pitched down up to
+#: this (near the base a level gripper cannot reach low points), degrees. A held bottle is
+#: always carried level, so it stays upright.
+EMPTY_MAX_PITCH_DEG = 90
+
+
+class Abort(Exception):  # noqa: N818 - control flow inside the analyze task
+    """Ends the analysis with a reason (becomes AnalyzeResult.ok = False)."""
+
+
+def _yaw(T: Array) -> float:
+    """Heading of a pose's x axis in the base's xy plane, rad."""
+    return math.atan2(T[1, 0], T[0, 0])
+
+
+@dataclass(frozen=True)
+class Held:
+    """The picked bottle: its geometry, where it came from and how it is carried, metres."""
+
+    radius: float
+    height: float
+    table_z: float
+    grasp_offset: float
+    carry_z: float
+    home_xy: Array
+
+    @property
+    def grasp_z(self) -> float:
+        return self.table_z + self.grasp_offset
+
+    @staticmethod
+    def from_grab(
+        grabbed: GrabResult,
+        finger: float,
+        track: TrackState,
+        obstacle_tops: Sequence[float],
+        gcfg: GrabConfig,
+    ) -> Held:
+        """The radius from the closed fingers (the track's if implausible), height, table and
+        grasp height from the grasp, the carry height above every other object's top
+        (``obstacle_tops``)."""
+        assert grabbed.target is not None and grabbed.grasp_z is not None
+        height = float(grabbed.height if grabbed.height is not None else 2.0 * grabbed.target[2])
+        table_z = grabbed.target[2] - 0.5 * height
+        grasp_offset = grabbed.grasp_z - table_z
+        radius = finger - PAD_INSET_M
+        if not RADIUS_RANGE_M[0] <= radius <= RADIUS_RANGE_M[1]:
+            radius = float(track.radius or 0.03)
+        tallest = max([table_z, *obstacle_tops])
+        carry_z = max(tallest + CARRY_CLEARANCE_M + grasp_offset, grabbed.grasp_z + gcfg.lift)
+        return Held(
+            radius, height, table_z, grasp_offset, carry_z, np.array(grabbed.target[:2], float)
+        )
+
+
+class Carrier:
+    """The arm's moves while the analysed bottle is off its place (the module docstring).
+
+    ``held`` is the picked bottle (None before the pick), ``last_T`` the last pose commanded
+    (straight moves start there), ``where`` where the bottle is, for a failure's reason.
+    """
+
+    def __init__(self, ctx: TaskContext, grab_cfg: GrabConfig) -> None:
+        self.ctx, self.grab_cfg = ctx, grab_cfg
+        self.held: Held | None = None
+        self.last_T: Array | None = None
+        self.where = "in its place"
+
+    # ------------------------------------------------------------ one move
+
+    def pose(self, p: ArrayLike, yaw: float, max_pitch_deg: int = 0) -> tuple[Array, Array]:
+        """(T_base_ee, q): the gripper at ``p`` facing ``yaw``, level if the arm reaches it so
+        near the last commanded pose (wrist unflipped), else pitched down in 5 degree steps up
+        to ``max_pitch_deg``; Abort if neither."""
+        arm = self.ctx.arm
+        found = level_pose(p, yaw, motion_seed(arm, self.last_T), arm.model, max_pitch_deg)
+        if found is not None:
+            return found
+        raise Abort(
+            f"the gripper cannot reach ({', '.join(f'{v:.3f}' for v in p)}) m facing "
+            f"{math.degrees(yaw):.0f} degrees"
+        )
+
+    def move(self, what: str, T: Array, q: Array, duration: float) -> None:
+        """One checked move taking at least ``duration`` (longer if a joint would exceed
+        :data:`~armvision.tasks.motion.SPEED_FRACTION` of its velocity limit); Abort with the
+        arm's reason."""
+        arm = self.ctx.arm
+        duration = paced_time(arm, q, duration)
+        if not self.ctx.move_pose(T, moving_time=duration, custom_guess=q):
+            raise Abort(f"{what}: {arm.last_error or 'the arm refused the move'}")
+        self.last_T = T
+
+    def straight(
+        self, what: str, p_goal: ArrayLike, yaw_goal: float, max_pitch_deg: int = 0
+    ) -> None:
+        """From the last commanded pose straight to ``p_goal`` in segments of at most
+        :data:`SEGMENT_M` at :data:`CARRY_SPEED_M_S`, the yaw turning evenly to ``yaw_goal``,
+        each point as level as :meth:`pose` finds (one joint-space move near the table can
+        sweep the gripper through what stands there)."""
+        assert self.last_T is not None
+        p_from = self.last_T[:3, 3].copy()
+        yaw_from = _yaw(self.last_T)
+        turn = (yaw_goal - yaw_from + math.pi) % (2 * math.pi) - math.pi
+        p_goal = np.asarray(p_goal, dtype=float)
+        length = float(np.linalg.norm(p_goal - p_from))
+        n = max(1, math.ceil(length / SEGMENT_M), math.ceil(abs(turn) / math.radians(20.0)))
+        for k in range(1, n + 1):
+            s = k / n
+            T, q = self.pose((1 - s) * p_from + s * p_goal, yaw_from + s * turn, max_pitch_deg)
+            self.move(what, T, q, max(SEGMENT_TIME_S, length / n / CARRY_SPEED_M_S))
+
+    def finger(self) -> float:
+        return float(self.ctx.arm.gripper.get_finger_position())
+
+    # ------------------------------------------------------------ carrying steps
+
+    def put_down(self, xy: Array, where: str) -> None:
+        """Carry the held bottle at the carry height to above ``xy``, stand it there, release
+        it and :meth:`retreat`."""
+        held = self.held
+        assert held is not None and self.last_T is not None
+        yaw = math.atan2(xy[1], xy[0])
+        p = self.last_T[:3, 3]
+        self.straight("lift for carrying", [p[0], p[1], held.carry_z], _yaw(self.last_T))
+        self.straight("carry", [xy[0], xy[1], held.carry_z], yaw)
+        self.straight("lower onto the table", [xy[0], xy[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
+        self.ctx.open_gripper()
+        self.where = where
+        self.retreat(xy)
+
+    def retreat(self, xy: Array) -> None:
+        """From the grasp pose at ``xy``: back off toward the base until the fingertips are
+        :data:`BACKOFF_MARGIN_M` clear of the bottle, then rise
+        :data:`~armvision.tasks.grab.HOVER_CLEARANCE_M` above its top (out of the camera's
+        view of it: behind and above it)."""
+        held = self.held
+        assert held is not None
+        yaw, back = math.atan2(xy[1], xy[0]), self.backoff_point(xy)
+        self.straight("back off", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        top = held.table_z + held.height + HOVER_CLEARANCE_M
+        self.straight("rise", [back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG)
+
+    def pick_up(self, xy: Array) -> None:
+        """Grasp the bottle standing where this task released it (retreat, reversed)."""
+        held = self.held
+        assert held is not None
+        yaw, back = math.atan2(xy[1], xy[0]), self.backoff_point(xy)
+        self.straight(
+            "down behind the bottle", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG
+        )
+        self.straight("approach", [xy[0], xy[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        self.ctx.close_gripper()
+        if self.finger() < self.ctx.arm.model.finger_limits[0] + GRASP_MARGIN_M:
+            self.ctx.open_gripper()
+            self.retreat(xy)
+            raise Abort("could not grasp the bottle again where it was presented")
+        self.where = "held by the gripper"
+
+    def backoff_point(self, xy: Array) -> Array:
+        """(x, y) on the line to the base where the open fingertips clear the bottle at ``xy``."""
+        assert self.held is not None
+        d = float(np.linalg.norm(xy))
+        return xy * max(d - self.held.radius - BACKOFF_MARGIN_M, 0.0) / max(d, 1e-9)
+
+    def go_safe(self) -> None:
+        """To the grasp's safe start pose, out of the camera's way."""
+        arm = self.ctx.arm
+        T_safe = safe_start_pose(self.grab_cfg.safe_pose, arm.model)
+        q_safe, _ = ik(T_safe, arm.get_joint_positions(), arm.model)
+        self.move("safe start pose", T_safe, q_safe, self.grab_cfg.moving_time)

@@ -1,0 +1,230 @@
+"""Where to stand a picked bottle for the camera, and the pixel box of an upright bottle.
+
+:func:`presentation_spot` searches the table, in front of the base, for the spot where the
+camera sees the bottle best: fully in the image, near ``analyze.present_distance`` from the
+camera, clear of every other object (:class:`Obstacle`) and of the line of sight, reachable for
+the carrying moves of :mod:`armvision.tasks.carry`, preferably against bare table.
+:func:`bottle_box` projects an upright bottle into the image as the liquid meter models it (the
+box analyze measures a presented bottle in, since the detector's box of a clear bottle is
+narrower than the bottle).
+
+Units: metres, radians, pixels for boxes; positions in the base frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from armvision.camera.frames import Intrinsics, project
+from armvision.geometry import inv_T, make_T, rpy_to_R
+from armvision.perception.detection import BOTTLE_BODY_FRACTION
+from armvision.robot.kinematics import ArmModel
+from armvision.tasks.carry import BACKOFF_MARGIN_M, EMPTY_MAX_PITCH_DEG
+from armvision.tasks.grab import GRIPPER_HALF_WIDTH_M, HOVER_CLEARANCE_M
+from armvision.tasks.motion import unflipped_ik
+
+Array = NDArray[np.float64]
+#: A pixel box (x0, y0, x1, y1).
+Box = tuple[float, float, float, float]
+
+#: The presentation spot keeps this free gap to every other object (room for a finger), m.
+SPOT_CLEARANCE_M = 0.06
+#: Nothing may stand within this of the line of sight from the camera to the spot, m.
+SIGHT_MARGIN_M = 0.015
+#: Objects up to this far behind the bottle (seen from the camera) are its background, m ...
+BACKGROUND_M = 0.4
+#: ... and a spot with one beside the bottle in the image costs this much in the choice of
+#: spot (as 1 m further from ``present_distance``): the liquid meter compares the bottle
+#: with what it sees beside it, and edges there move its shoulder.
+CLUTTER_PENALTY = 1.0
+#: The bottle's projected box must stay this far inside the image at the spot, pixels.
+IMAGE_MARGIN_PX = 12.0
+#: Nearest the camera a spot may be (the D435's minimum depth at 640x480 is ~0.28 m), m.
+MIN_RANGE_M = 0.32
+#: Spot candidates: distances from the base axis (m) and bearings (rad) tried.
+SPOT_DISTANCES_M = np.arange(0.22, 0.601, 0.02)
+SPOT_BEARINGS_RAD = np.radians(np.arange(-70.0, 70.1, 5.0))
+
+
+def bottle_box(
+    intr: Intrinsics,
+    T_cam_base: ArrayLike,
+    p_base_foot: ArrayLike,
+    radius: float,
+    height: float,
+    body_fraction: float = BOTTLE_BODY_FRACTION,
+) -> Box:
+    """Pixel box (x0, y0, x1, y1) of an upright bottle standing at ``p_base_foot``.
+
+    The bottle as the liquid meter models it: a cylinder of ``radius`` from the foot up to
+    ``body_fraction`` of ``height``, then a neck and cap of about half the radius; the box
+    bounds the projection of rings of 24 points at the foot, the shoulder and the top.
+    """
+    ang = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
+    circle = np.column_stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)])
+    foot = np.asarray(p_base_foot, dtype=float)
+    rings = [
+        foot + circle * (scale * radius) + [0.0, 0.0, frac * height]
+        for frac, scale in ((0.0, 1.0), (body_fraction, 1.0), (1.0, 0.5))
+    ]
+    T = np.asarray(T_cam_base, dtype=float)
+    pts_cam = np.concatenate(rings) @ T[:3, :3].T + T[:3, 3]
+    uv = project(intr, pts_cam)
+    return (
+        float(uv[:, 0].min()),
+        float(uv[:, 1].min()),
+        float(uv[:, 0].max()) + 1.0,
+        float(uv[:, 1].max()) + 1.0,
+    )
+
+
+def _segment_distance(p: Array, a: Array, b: Array) -> float:
+    """Distance from point ``p`` to the segment a-b (2-D)."""
+    ab = b - a
+    s = float(np.clip((p - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+    return float(np.linalg.norm(p - (a + s * ab)))
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """Another object on the table: centre (x, y) in the base frame, radius, top height, m."""
+
+    xy: tuple[float, float]
+    radius: float
+    top: float
+
+
+@dataclass(frozen=True)
+class Spot:
+    """Where to stand the bottle for the camera: (x, y) in the base frame, the gripper's yaw
+    there (facing it from the base), its distance from the camera's centre (m) and its
+    projected box (pixels)."""
+
+    xy: tuple[float, float]
+    yaw: float
+    distance: float
+    box: Box
+
+
+def _reachable(p: ArrayLike, yaw: float, max_pitch_deg: int, model: ArmModel) -> bool:
+    """Whether the gripper reaches ``p`` facing ``yaw``, pitched down at most
+    ``max_pitch_deg`` (5 degree steps), with the wrist unflipped."""
+    return any(
+        unflipped_ik(make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p), model.home, model)
+        is not None
+        for pitch in range(0, max_pitch_deg + 1, 5)
+    )
+
+
+def presentation_spot(
+    T_base_cam: ArrayLike,
+    intr: Intrinsics,
+    radius: float,
+    height: float,
+    table_z: float,
+    grasp_offset: float,
+    obstacles: Sequence[Obstacle],
+    present_distance: float,
+    standoff: float,
+    model: ArmModel,
+    carry_z: float,
+) -> Spot | None:
+    """The spot on the table where the camera sees the bottle best; None if there is none.
+
+    Candidates: :data:`SPOT_DISTANCES_M` from the base axis at :data:`SPOT_BEARINGS_RAD`. A
+    candidate counts when (1) the bottle's projected box (:func:`bottle_box`) lies inside the
+    image by :data:`IMAGE_MARGIN_PX` and its centre is at least :data:`MIN_RANGE_M` from the
+    camera; (2) it is :data:`SPOT_CLEARANCE_M` clear of every obstacle; (3) no obstacle stands
+    within :data:`SIGHT_MARGIN_M` of the line of sight from the camera to it (in plan view, so
+    any height counts as blocking); (4) the open gripper's corridor from ``standoff`` short of
+    it is clear (as the grasp requires); (5) the arm reaches, facing it from the base, the
+    grasp pose ``grasp_offset`` above the table and the carry pose at ``carry_z`` with the
+    gripper level (it holds the bottle there), and the back-off point (:data:`BACKOFF_MARGIN_M`
+    behind the bottle) at the grasp height and :data:`HOVER_CLEARANCE_M` above the bottle,
+    pitched down if need be. The best is the one whose distance from the camera is nearest
+    ``present_distance``, then the one nearest the image centre, preferring those seen
+    against bare table (:func:`_bare_background`).
+    """
+    T_base_cam = np.asarray(T_base_cam, dtype=float)
+    T_cam_base = inv_T(T_base_cam)
+    p_cam = T_base_cam[:3, 3]
+    best: tuple[float, Spot] | None = None
+    for d in SPOT_DISTANCES_M:
+        for yaw in SPOT_BEARINGS_RAD:
+            xy = np.array([d * math.cos(yaw), d * math.sin(yaw)])
+            centre = np.array([xy[0], xy[1], table_z + 0.5 * height])
+            distance = float(np.linalg.norm(centre - p_cam))
+            if distance < MIN_RANGE_M or (T_cam_base[:3, :3] @ centre + T_cam_base[:3, 3])[2] <= 0:
+                continue
+            box = bottle_box(intr, T_cam_base, [xy[0], xy[1], table_z], radius, height)
+            m = IMAGE_MARGIN_PX
+            if box[0] < m or box[1] < m or box[2] > intr.width - m or box[3] > intr.height - m:
+                continue
+            if not _clear(xy, radius, yaw, float(d), standoff, p_cam[:2], obstacles):
+                continue
+            grasp_z = table_z + grasp_offset
+            back = xy * max(d - radius - BACKOFF_MARGIN_M, 0.0) / d
+            poses = (
+                (xy, grasp_z, 0),
+                (xy, carry_z, 0),
+                (back, grasp_z, EMPTY_MAX_PITCH_DEG),
+                (back, table_z + height + HOVER_CLEARANCE_M, EMPTY_MAX_PITCH_DEG),
+            )
+            if not all(_reachable([*p, z], yaw, pitch, model) for p, z, pitch in poses):
+                continue
+            centre_px = 0.5 * (box[0] + box[2]) - intr.ppx
+            score = abs(distance - present_distance) + 0.05 * abs(centre_px) / intr.fx
+            if not _bare_background(xy, radius, p_cam[:2], obstacles):
+                score += CLUTTER_PENALTY
+            if best is None or score < best[0]:
+                best = (score, Spot((float(xy[0]), float(xy[1])), float(yaw), distance, box))
+    return None if best is None else best[1]
+
+
+def _clear(
+    xy: Array,
+    radius: float,
+    yaw: float,
+    d: float,
+    standoff: float,
+    cam_xy: Array,
+    obstacles: Sequence[Obstacle],
+) -> bool:
+    """Conditions (2)-(4) of :func:`presentation_spot` for one candidate."""
+    u = np.array([math.cos(yaw), math.sin(yaw)])
+    corridor_start = u * max(d - standoff - 0.05, 0.0)
+    for ob in obstacles:
+        q = np.asarray(ob.xy, dtype=float)
+        if np.linalg.norm(q - xy) < radius + ob.radius + SPOT_CLEARANCE_M:
+            return False
+        if _segment_distance(q, cam_xy, xy) < radius + ob.radius + SIGHT_MARGIN_M:
+            return False
+        if _segment_distance(q, corridor_start, xy) < GRIPPER_HALF_WIDTH_M + ob.radius:
+            return False
+    return True
+
+
+def _bare_background(
+    xy: Array, radius: float, cam_xy: Array, obstacles: Sequence[Obstacle]
+) -> bool:
+    """Whether the camera sees the bottle at ``xy`` against bare table: no obstacle within
+    :data:`BACKGROUND_M` behind it stands in the strip the liquid meter compares the bottle
+    with (1.6 radii each side of it, widening with distance as the view does), in plan view.
+    """
+    ray = xy - cam_xy
+    length = float(np.linalg.norm(ray))
+    u = ray / max(length, 1e-9)
+    for ob in obstacles:
+        rel = np.asarray(ob.xy, dtype=float) - cam_xy
+        along = float(rel @ u)
+        if not length < along < length + BACKGROUND_M + ob.radius:
+            continue
+        across = abs(float(rel[0] * u[1] - rel[1] * u[0]))
+        if across < 1.6 * radius * along / length + ob.radius + SIGHT_MARGIN_M:
+            return False
+    return True
