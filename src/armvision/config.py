@@ -16,7 +16,7 @@ import os
 import sys
 import typing
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import tomli_w
 from pydantic import (
@@ -32,6 +32,7 @@ from pydantic import (
     field_validator,
 )
 from pydantic.dataclasses import dataclass
+from pydantic_core import ErrorDetails
 
 from armvision.errors import ConfigError
 
@@ -98,7 +99,10 @@ def _at_most_half(value: float, info: ValidationInfo, other: str) -> float:
     return value
 
 
-def _above(value: float, info: ValidationInfo, other: str, *, equal: bool = False) -> float:
+_Number = TypeVar("_Number", int, float)
+
+
+def _above(value: _Number, info: ValidationInfo, other: str, *, equal: bool = False) -> _Number:
     """``value`` must exceed (or with ``equal`` at least equal) the field ``other`` before it."""
     low = info.data.get(other)
     if low is not None and (value < low if equal else value <= low):
@@ -517,7 +521,7 @@ class AnalyzeConfig:
     ``present_distance`` m from the camera as the field of view and the arm's reach allow (with
     the simulator's default camera, 1 m away and 0.45 m up, the nearest is ~0.55 m), measured
     there and put back. ``timeout_s`` bounds finding and measuring the bottle, the pick and
-    presentation included (about 25 s of it); a bottle that was moved is always put back.
+    presentation included; a bottle that was moved is always put back.
     """
 
     frames: Annotated[Int, Field(ge=1, le=100)] = 8
@@ -647,7 +651,7 @@ def apply_override(data: dict[str, Any], assignment: str) -> None:
     node[leaf] = _parse_value(value.strip())
 
 
-def _describe(error: dict[str, Any]) -> str:
+def _describe(error: ErrorDetails) -> str:
     key = _clean(".".join(str(part) for part in error["loc"]), 120) or "(top level)"
     if error["type"] in ("unexpected_keyword_argument", "extra_forbidden"):
         return f"unknown key '{key}'"

@@ -82,12 +82,15 @@ def rotation_angle(R: ArrayLike) -> Array:
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
-def pose_error(T_a: ArrayLike, T_b: ArrayLike) -> tuple[Array, Array]:
-    """Translation distance (m) and rotation angle (rad) between poses (..., 4, 4) in one frame."""
-    T_a = np.asarray(T_a, dtype=float)
-    T_b = np.asarray(T_b, dtype=float)
-    dp = np.linalg.norm(T_a[..., :3, 3] - T_b[..., :3, 3], axis=-1)
-    R_rel = np.swapaxes(T_a[..., :3, :3], -1, -2) @ T_b[..., :3, :3]
+def pose_error(T_w_a: ArrayLike, T_w_b: ArrayLike) -> tuple[Array, Array]:
+    """Translation distance (m) and rotation angle (rad) between poses (..., 4, 4) in one frame.
+
+    ``T_w_a`` and ``T_w_b`` are the poses of frames a and b in the same frame w.
+    """
+    T_w_a = np.asarray(T_w_a, dtype=float)
+    T_w_b = np.asarray(T_w_b, dtype=float)
+    dp = np.linalg.norm(T_w_a[..., :3, 3] - T_w_b[..., :3, 3], axis=-1)
+    R_rel = np.swapaxes(T_w_a[..., :3, :3], -1, -2) @ T_w_b[..., :3, :3]
     return dp, rotation_angle(R_rel)
 
 
@@ -99,15 +102,15 @@ def skew(v: ArrayLike) -> Array:
 
 def rotation_between(a: ArrayLike, b: ArrayLike) -> Array:
     """The smallest rotation taking unit direction ``a`` onto unit direction ``b``."""
-    a = np.asarray(a, dtype=float) / np.linalg.norm(a)
-    b = np.asarray(b, dtype=float) / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(np.dot(a, b))
+    u = np.asarray(a, dtype=float) / np.linalg.norm(a)
+    w = np.asarray(b, dtype=float) / np.linalg.norm(b)
+    axis = np.cross(u, w)
+    s, c = np.linalg.norm(axis), float(np.dot(u, w))
     if s < 1e-12:
         if c > 0:
             return np.eye(3)
         # Opposite directions: turn by pi about any axis normal to a.
-        normal = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        normal = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
         return Rotation.from_rotvec(np.pi * normal / np.linalg.norm(normal)).as_matrix()
     return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
 

@@ -111,6 +111,7 @@ class DemoReport:
 def demo_scene(config: Config, seed: int):
     """Two bottles and a cup (random sizes, fills, liquids, yaw), placed without overlap."""
     from armvision.sim.world import (
+        ObjectSpec,
         SceneSpec,
         place_without_overlap,
         random_camera_pose,
@@ -119,7 +120,7 @@ def demo_scene(config: Config, seed: int):
 
     rng = np.random.default_rng([seed, 0xDE30])
     want = {"bottle": 2, "cup": 1}
-    drafts = []
+    drafts: list[ObjectSpec] = []
     while any(want.values()):
         obj = random_object(rng, f"object{len(drafts)}")
         if want[obj.kind] > 0:
@@ -193,17 +194,18 @@ def run_demo(
             say(f"analysing the bottle of track {track_id}")
             status = system.run_task("analyze", analyze, track_id=track_id)
             result = status.result or {}
-            fill = result.get("fill")
-            ok = status.phase == "succeeded" and fill is not None
-            err = abs(fill - obj.spec.fill) if ok else math.nan
+            fill = result.get("fill") if status.phase == "succeeded" else None
+            err = math.nan if fill is None else abs(fill - obj.spec.fill)
             colour = result.get("colour_name") or result.get("colour") or "-"
             report.add(
                 "analyze",
                 f"{name} (track {track_id})",
-                f"fill {100 * fill:.1f} % {colour}" if ok else (status.error or "failed"),
+                f"fill {100 * fill:.1f} % {colour}"
+                if fill is not None
+                else (status.error or "failed"),
                 f"fill {100 * obj.spec.fill:.1f} % {obj.spec.liquid}",
-                f"{100 * err:.1f} points" if ok else "-",
-                ok and err <= FILL_TOL,
+                f"{100 * err:.1f} points" if fill is not None else "-",
+                fill is not None and err <= FILL_TOL,
             )
 
         frame_state = system.snapshot()

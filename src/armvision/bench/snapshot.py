@@ -38,7 +38,7 @@ def false_colour_depth(
     grey = (255.0 * (1.0 - scaled)).astype(np.uint8)  # near = high = warm in TURBO
     bgr = cv2.applyColorMap(grey, cv2.COLORMAP_TURBO)
     bgr[np.asarray(depth) <= 0.0] = 0
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
 
 
 def _write_png(path: Path, image: NDArray[Any]) -> None:

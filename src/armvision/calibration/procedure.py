@@ -103,7 +103,7 @@ def calibrate(
     )
 
 
-def pose_errors(T_estimate: Array, T_true: Array) -> dict[str, float]:
+def pose_errors(T_base_cam_est: Array, T_base_cam_true: Array) -> dict[str, float]:
     """Translation (mm) and rotation (deg) error of an estimated camera pose."""
-    dp, dr = pose_error(T_estimate, T_true)
+    dp, dr = pose_error(T_base_cam_est, T_base_cam_true)
     return {"translation_error_mm": 1000.0 * float(dp), "rotation_error_deg": math.degrees(dr)}

@@ -16,9 +16,9 @@ Methods (:data:`METHODS`), all on the same samples:
   frame, started from ``robust_svd``, robust loss, then outliers dropped: a tag mount that is
   a centimetre off no longer biases the camera pose.
 * ``joint_kinematic`` -- ``joint`` plus the zero offsets of the shoulder, elbow, forearm-roll
-  and wrist-angle encoders. The default: on the benchmark (README, "Measured figures") it is
-  within 0.4 mm of ``joint`` when the encoders are perfect and a third better when they carry
-  zero offsets, as real servos do, and like ``joint`` it survives a wrong ``tag.offset_ee``.
+  and wrist-angle encoders. The default: on the benchmark (README, "Measured figures") it
+  matches ``joint`` when the encoders are perfect and does better when they carry zero
+  offsets, as real servos do, and like ``joint`` it survives a wrong ``tag.offset_ee``.
 * ``tsai``, ``park``, ``horaud``, ``andreff``, ``daniilidis`` -- OpenCV ``calibrateHandEye``,
   eye-to-hand: it is given base-to-gripper (``T_ee_base``) where eye-in-hand takes
   gripper-to-base, and its "camera-to-gripper" answer is then camera-to-base.
@@ -75,7 +75,7 @@ class Fit:
     method: str
     T_base_cam: Array
     residuals: Array
-    used: Array
+    used: NDArray[np.bool_]
     offset_ee: Array
     notes: tuple[str, ...] = field(default=())
     joint_offsets: Array | None = None  # rad, only from methods that estimate them
@@ -249,6 +249,8 @@ def _refine(
     joints: tuple[int, ...] = (),
 ) -> Fit:
     """Least squares over the camera pose, the tag offset and ``joints``' zero offsets."""
+    if joints and joint_positions is None:
+        raise ValueError("estimating joint zero offsets needs the joint positions")
     start = solve_robust_svd(T_be, T_ct, offset_ee, outlier_m, min_samples)
     p_cam = T_ct[:, :3, 3]
     k = len(joints)
@@ -259,7 +261,7 @@ def _refine(
         return make_T(Rotation.from_rotvec(x[:3]).as_matrix(), x[3:6]), x[6:9], dq
 
     def kinematics(dq: Array) -> Array:
-        return T_be if not k else fk(joint_positions - dq)
+        return T_be if not k or joint_positions is None else fk(joint_positions - dq)
 
     def residual_vector(x: Array, mask: Array) -> Array:
         T, o, dq = unpack(x)
@@ -386,7 +388,9 @@ _ROBOT_WORLD = {
 }
 
 
-def _split(T: Array) -> tuple[list[Array], list[Array]]:
+def _split(
+    T: NDArray[np.floating],
+) -> tuple[list[NDArray[np.floating]], list[NDArray[np.floating]]]:
     return [R.copy() for R in T[:, :3, :3]], [t.reshape(3, 1).copy() for t in T[:, :3, 3]]
 
 

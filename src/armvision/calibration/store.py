@@ -527,6 +527,7 @@ def _methods(value: Any) -> dict[str, Any]:
         if "error" in entry:
             methods[method] = {"error": _text(entry["error"], f"{name}.error")}
             continue
+        offsets = entry.get("joint_offsets_rad")
         methods[method] = {
             "T_base_cam": _matrix(
                 _get(entry, "T_base_cam", f"{name}.T_base_cam"), f"{name}.T_base_cam"
@@ -542,10 +543,9 @@ def _methods(value: Any) -> dict[str, Any]:
             "dropped_samples": _integers(
                 entry.get("dropped_samples", []), f"{name}.dropped_samples"
             ),
-            "joint_offsets_rad": _optional(
-                entry.get("joint_offsets_rad"),
-                lambda v, n=name: _numbers(v, f"{n}.joint_offsets_rad", 6),
-            ),
+            "joint_offsets_rad": None
+            if offsets is None
+            else _numbers(offsets, f"{name}.joint_offsets_rad", 6),
         }
     return methods
 

@@ -124,7 +124,8 @@ class Intrinsics:
         model = rs_intrinsics.model
         # pybind11 enums have .name; str() gives "distortion.<name>" as a fallback.
         name = getattr(model, "name", None) or str(model).rsplit(".", 1)[-1]
-        coeffs = tuple(float(c) for c in rs_intrinsics.coeffs)
+        # Five coefficients, zero-padded when the SDK reports fewer.
+        c = [float(v) for v in rs_intrinsics.coeffs] + [0.0] * 5
         return cls(
             width=int(rs_intrinsics.width),
             height=int(rs_intrinsics.height),
@@ -133,7 +134,7 @@ class Intrinsics:
             ppx=float(rs_intrinsics.ppx),
             ppy=float(rs_intrinsics.ppy),
             model=name,
-            coeffs=(coeffs + (0.0,) * 5)[:5],  # type: ignore[arg-type]
+            coeffs=(c[0], c[1], c[2], c[3], c[4]),
         )
 
 
@@ -173,31 +174,31 @@ def distort(intr: Intrinsics, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]
     - ftheta: x' = x atan(2 r tan(w / 2)) / (w r)
     """
     _check_model(intr)
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
+    xu = np.asarray(x, dtype=float)
+    yu = np.asarray(y, dtype=float)
     k1, k2, p1, p2, k3 = (float(c) for c in intr.coeffs)
     model = intr.model
     if model in ("brown_conrady", "inverse_brown_conrady", "modified_brown_conrady"):
-        r2 = x * x + y * y
+        r2 = xu * xu + yu * yu
         f = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
-        xf, yf = x * f, y * f
+        xf, yf = xu * f, yu * f
         # librealsense's inverse/modified variants take the tangential terms of the scaled x, y.
-        xt, yt = (x, y) if model == "brown_conrady" else (xf, yf)
+        xt, yt = (xu, yu) if model == "brown_conrady" else (xf, yf)
         return (
             xf + 2.0 * p1 * xt * yt + p2 * (r2 + 2.0 * xt * xt),
             yf + 2.0 * p2 * xt * yt + p1 * (r2 + 2.0 * yt * yt),
         )
     if model in ("kannala_brandt4", "ftheta"):
         # librealsense clamps r at FLT_EPSILON so the optical axis maps to itself.
-        r = np.maximum(np.hypot(x, y), _FLT_EPSILON)
+        r = np.maximum(np.hypot(xu, yu), _FLT_EPSILON)
         if model == "kannala_brandt4":
             theta = np.arctan(r)
             t2 = theta * theta
             rd = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (p1 + t2 * p2))))
         else:
             rd = np.arctan(2.0 * r * np.tan(k1 / 2.0)) / k1
-        return x * rd / r, y * rd / r
-    return x, y
+        return xu * rd / r, yu * rd / r
+    return xu, yu
 
 
 def undistort(intr: Intrinsics, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
@@ -214,16 +215,16 @@ def undistort(intr: Intrinsics, x: ArrayLike, y: ArrayLike) -> tuple[Array, Arra
     k1, k2, p1, p2, k3 = (float(c) for c in intr.coeffs)
     model = intr.model
     if model in ("brown_conrady", "inverse_brown_conrady"):
-        x, y = x_d, y_d
+        xu, yu = x_d, y_d
         for _ in range(_BROWN_CONRADY_ITERATIONS):
-            r2 = x * x + y * y
+            r2 = xu * xu + yu * yu
             icdist = 1.0 / (1.0 + ((k3 * r2 + k2) * r2 + k1) * r2)
             # inverse_brown_conrady's tangential terms act on the radially scaled point.
-            xq, yq = (x, y) if model == "brown_conrady" else (x / icdist, y / icdist)
+            xq, yq = (xu, yu) if model == "brown_conrady" else (xu / icdist, yu / icdist)
             dx = 2.0 * p1 * xq * yq + p2 * (r2 + 2.0 * xq * xq)
             dy = 2.0 * p2 * xq * yq + p1 * (r2 + 2.0 * yq * yq)
-            x, y = (x_d - dx) * icdist, (y_d - dy) * icdist
-        return x, y
+            xu, yu = (x_d - dx) * icdist, (y_d - dy) * icdist
+        return xu, yu
     if model == "kannala_brandt4":
         rd = np.maximum(np.hypot(x_d, y_d), _FLT_EPSILON)
         theta = rd.copy()
@@ -274,9 +275,9 @@ def deproject(intr: Intrinsics, uv: ArrayLike, depth: ArrayLike) -> Array:
     for models none, brown_conrady, inverse_brown_conrady and kannala_brandt4.
     """
     _check_model(intr)
-    uv = np.atleast_2d(np.asarray(uv, dtype=float))
-    z = np.broadcast_to(np.asarray(depth, dtype=float), (uv.shape[0],))
-    x, y = _normalised_rays(intr, uv)
+    pixels = np.atleast_2d(np.asarray(uv, dtype=float))
+    z = np.broadcast_to(np.asarray(depth, dtype=float), (pixels.shape[0],))
+    x, y = _normalised_rays(intr, pixels)
     return np.column_stack([x * z, y * z, z])
 
 
@@ -297,7 +298,7 @@ def deproject_image(intr: Intrinsics, depth: ArrayLike) -> Array:
     on the intrinsics, so it is computed once per (intrinsics, image size) and cached.
     """
     _check_model(intr)
-    depth = np.asarray(depth, dtype=float)
-    x, y = _image_rays(intr, depth.shape[0], depth.shape[1])
-    z = depth.ravel()
+    d = np.asarray(depth, dtype=float)
+    x, y = _image_rays(intr, d.shape[0], d.shape[1])
+    z = d.ravel()
     return np.column_stack([x * z, y * z, z])

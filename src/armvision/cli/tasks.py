@@ -8,7 +8,7 @@ import dataclasses
 import json
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from armvision.cli.args import (
     _say,
@@ -54,7 +54,7 @@ def _system(args: argparse.Namespace, config: Config):
     if args.real:
         return build.real_system(config, args.calibration or config.calibration.file)
     from armvision.bench.system import calibrate_empty_table, sim_system
-    from armvision.sim.world import generate_scene
+    from armvision.sim.scene import generate_scene
 
     if args.calibration == "truth":
         calibration = None  # the simulator's camera pose
@@ -64,7 +64,7 @@ def _system(args: argparse.Namespace, config: Config):
         _say("calibrating the simulated camera with the gripper tag (empty table)")
         T_base_cam = generate_scene(config, args.seed).T_base_cam
         calibration, _ = calibrate_empty_table(config, args.seed, T_base_cam)
-    mode = "realtime" if args.realtime else "lockstep"
+    mode: Literal["lockstep", "realtime"] = "realtime" if args.realtime else "lockstep"
     return sim_system(config, args.seed, mode=mode, calibration=calibration)
 
 

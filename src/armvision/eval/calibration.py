@@ -24,7 +24,7 @@ from armvision.errors import CalibrationError
 
 def random_placement(rng: np.random.Generator) -> tuple[np.ndarray, dict[str, float]]:
     """A camera pose as described in the module docstring, and its parameters."""
-    from armvision.sim.world import camera_pose_from_placement
+    from armvision.camera.placement import camera_pose_from_placement
 
     distance = rng.uniform(0.8, 1.4)
     azimuth = math.radians(rng.uniform(-60.0, 60.0))
@@ -62,7 +62,8 @@ def evaluate_calibration(
             direction = rng.normal(size=3)
             direction /= np.linalg.norm(direction)
             wrong = np.asarray(config.tag.offset_ee) + direction * offset_error_mm / 1000
-            told = dataclasses.replace(config.tag, offset_ee=tuple(float(v) for v in wrong))
+            x, y, z = (float(v) for v in wrong)
+            told = dataclasses.replace(config.tag, offset_ee=(x, y, z))
         run: dict[str, Any] = {
             "seed": seed,
             "placement": placement,

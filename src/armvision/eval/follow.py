@@ -141,7 +141,7 @@ def _run_mode(
     settle_s: float,
 ) -> dict[str, Any]:
     """One follow run in ``mode``; its task report and the errors against the truth."""
-    from armvision.bench.system import sim_system
+    from armvision.bench.system import sim_system, sim_world
 
     follow_cfg = config.follow
     tag_id = follow_cfg.tag_id
@@ -150,7 +150,7 @@ def _run_mode(
     clock = {"t0": math.inf, "next": math.inf}
 
     system = sim_system(config, seed, scene=scene, calibration=calibration)
-    world = system.world
+    world = sim_world(system)
     try:
         _check_path(config, world.T_base_cam(), system.camera.intrinsics, path, lap)
     except ConfigError:

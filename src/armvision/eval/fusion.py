@@ -49,10 +49,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 
@@ -95,11 +95,11 @@ def perturbed_calibration(
     return T_base_cam @ dT, info
 
 
-def _rmse_mm(errors: Array) -> float:
-    errors = np.asarray(errors, dtype=float).reshape(-1, 3)
-    if len(errors) == 0:
+def _rmse_mm(errors: ArrayLike) -> float:
+    e = np.asarray(errors, dtype=float).reshape(-1, 3)
+    if len(e) == 0:
         return math.nan
-    return 1000.0 * math.sqrt(float(np.mean(np.sum(errors**2, axis=1))))
+    return 1000.0 * math.sqrt(float(np.mean(np.sum(e**2, axis=1))))
 
 
 def scripted_waypoints(
@@ -264,6 +264,8 @@ def _evaluate_ee(
                 loop.push_tag(t_tag, T_cam_tag)
             snapshot = loop.step()
             q = recorder.last
+            # The step read the encoders (through the recorder) and fused them.
+            assert q is not None and snapshot.ee is not None
             t_now = snapshot.time
             truth = world.T_base_ee()[:3, 3]
             encoders_only.update_encoders(t_now, q)
@@ -368,7 +370,7 @@ def _object_paths(
 
 
 def _object_scene(config: Config, seed: int):
-    from armvision.sim.world import ObjectSpec, generate_scene
+    from armvision.sim.scene import ObjectSpec, generate_scene
 
     rng = np.random.default_rng([seed, 0x0B7])
     base = generate_scene(
@@ -380,7 +382,7 @@ def _object_scene(config: Config, seed: int):
     # Side by side as the camera (in front of the robot, on its x axis) sees them, so none
     # hides another while still; pair (0, 1) crosses at (0.38, -0.14), (2, 3) at (0.38, 0.14).
     starts = np.array([[0.30, -0.22], [0.30, -0.06], [0.30, 0.06], [0.30, 0.22]])
-    kinds = ["bottle", "bottle", "bottle", "cup"]
+    kinds: list[Literal["bottle", "cup"]] = ["bottle", "bottle", "bottle", "cup"]
     objects = []
     for k, (kind, (x, y)) in enumerate(zip(kinds, starts)):
         radius = float(rng.uniform(0.026, 0.032))
@@ -390,7 +392,7 @@ def _object_scene(config: Config, seed: int):
         objects.append(
             ObjectSpec(
                 f"{kind}{k}",
-                kind,  # type: ignore[arg-type]
+                kind,
                 radius=radius,
                 height=height,
                 fill=float(rng.uniform(0.2, 0.8)),

@@ -79,7 +79,7 @@ def run_trial(
             "held_kind": kind,
             "lift_m": None if lift is None else round(lift, 4),
             "time_s": None
-            if status.finished is None
+            if status.finished is None or status.started is None
             else round(status.finished - status.started, 3),
             "aim_error_mm": None if aim_error_mm is None else round(aim_error_mm, 2),
             "objects": len(objects),
@@ -98,7 +98,7 @@ def evaluate_grab(
     """``trials`` grabs in random scenes from ``seed`` (see the module docstring)."""
     from armvision.bench.system import calibrate_sim
     from armvision.runtime.build import result_status
-    from armvision.sim.world import generate_scene
+    from armvision.sim.scene import generate_scene
 
     if trials < 1:
         raise ConfigError(f"trials must be at least 1, not {trials}")
@@ -110,6 +110,7 @@ def evaluate_grab(
     if calibration == "calibrate":
         result = calibrate_sim(config, seed)
         status = result_status(result)
+        assert result.truth is not None  # calibrate_sim fills in the simulator's truth
         cal_report.update(
             {
                 "method": result.method,

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Literal
+from typing import Any, Literal, NotRequired, TypedDict
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -91,7 +91,7 @@ def visible_fraction(
         return 0.0
     p_cam = p_cam[facing]
     uv = np.rint(project(intr, p_cam))
-    ok = np.isfinite(uv).all(axis=1)
+    ok = np.asarray(np.isfinite(uv).all(axis=1))
     ok[ok] &= (
         (uv[ok, 0] >= 0) & (uv[ok, 0] < intr.width) & (uv[ok, 1] >= 0) & (uv[ok, 1] < intr.height)
     )
@@ -99,6 +99,21 @@ def visible_fraction(
     cols, rows = uv[ok, 0].astype(int), uv[ok, 1].astype(int)
     seen[ok] = true_depth[rows, cols] >= p_cam[ok, 2] - tolerance_m
     return float(seen.mean())
+
+
+class _ObjectRecord(TypedDict):
+    """One true object of a scene, as reported in ``per_scene``."""
+
+    name: str
+    kind: str
+    radius: float
+    height: float
+    center_cam: Array
+    visible_fraction: float
+    visible: bool
+    detection: NotRequired[int | None]
+    center_error_mm: NotRequired[float | None]
+    label: NotRequired[str | None]
 
 
 def match_detections(
@@ -153,7 +168,7 @@ def evaluate_objects(
         detections: list[Detection] = detector.detect(frame, context)
 
         T_cam_base = inv_T(truth.T_base_cam)
-        objects = []
+        objects: list[_ObjectRecord] = []
         for state in truth.objects:
             spec = state.spec
             T_cam_obj = T_cam_base @ state.T_base_obj
@@ -179,15 +194,16 @@ def evaluate_objects(
         matched_obj = {i: (j, dist) for i, j, dist in matches}
         scene_fp = [j for j in range(len(detections)) if j not in matched_det]
         for i, obj in enumerate(objects):
-            j, dist = matched_obj.get(i, (None, None))
-            obj["detection"] = None if j is None else j
-            obj["center_error_mm"] = None if dist is None else 1e3 * dist
-            obj["label"] = None if j is None else detections[j].label
+            match = matched_obj.get(i)
+            obj["detection"] = None if match is None else match[0]
+            obj["center_error_mm"] = None if match is None else 1e3 * match[1]
+            obj["label"] = None if match is None else detections[match[0]].label
             if obj["visible"]:
                 n_visible += 1
-                if j is not None:
+                if match is not None:
                     n_hits += 1
-            if j is not None:
+            if match is not None:
+                j, dist = match
                 n_matched += 1
                 errors_mm.append(1e3 * dist)
                 n_label_ok += int(detections[j].label == obj["kind"])

@@ -34,6 +34,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -50,6 +51,7 @@ from armvision.fusion.kalman import (
     as_time,
 )
 from armvision.fusion.tracker import (
+    DetectionLike,
     MultiObjectTracker,
     ObjectMeasurement,
     TrackState,
@@ -93,6 +95,12 @@ class FusionSnapshot:
     T_base_cam: np.ndarray | None = None
 
 
+class JointReader(Protocol):
+    """What the loop asks of an arm: its encoder reading, rad (the Arm interface has it)."""
+
+    def get_joint_positions(self) -> ArrayLike: ...
+
+
 class FusionLoop:
     """Fuse an arm's encoders with camera results at a fixed rate (see the module docstring).
 
@@ -105,7 +113,7 @@ class FusionLoop:
     def __init__(
         self,
         config: Config | FusionConfig,
-        arm: object,
+        arm: JointReader,
         T_base_cam: ArrayLike,
         T_ee_tag: ArrayLike,
         clock: Callable[[], float] = time.monotonic,
@@ -143,7 +151,7 @@ class FusionLoop:
         with self._lock:
             self._pending_tags.append(item)
 
-    def push_detections(self, t: float, detections: Sequence[object]) -> None:
+    def push_detections(self, t: float, detections: Sequence[DetectionLike]) -> None:
         """Every bottle/cup detection (camera frame) of the frame captured at ``t``.
 
         Push an empty list for a processed frame with nothing in it, so tracks count a miss.
@@ -175,7 +183,7 @@ class FusionLoop:
     def step(self) -> FusionSnapshot:
         """One fusion cycle (see the module docstring); returns and publishes the snapshot."""
         t = float(self.clock())
-        q = np.asarray(self.arm.get_joint_positions(), dtype=float)  # type: ignore[attr-defined]
+        q = np.asarray(self.arm.get_joint_positions(), dtype=float)
         with self._lock:
             tags, self._pending_tags = self._pending_tags, []
             objects, self._pending_objects = self._pending_objects, []

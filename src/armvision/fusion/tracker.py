@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -85,8 +86,20 @@ class ObjectMeasurement:
         object.__setattr__(self, "score", score)
 
 
+class DetectionLike(Protocol):
+    """What :func:`measurement_from_detection` reads of a detection: perception's
+    ``Detection`` has it all; ``radius``, ``height`` and ``box`` are read when present."""
+
+    @property
+    def label(self) -> str: ...
+    @property
+    def score(self) -> float: ...
+    @property
+    def center_cam(self) -> ArrayLike: ...
+
+
 def measurement_from_detection(
-    detection: object,
+    detection: DetectionLike,
     T_base_cam: ArrayLike,
     config: FusionConfig,
     focal_px: float = DEFAULT_FOCAL_PX,
@@ -99,7 +112,7 @@ def measurement_from_detection(
     detector's own error (the fitted circle, the height estimate).
     """
     T_base_cam = as_array("T_base_cam", T_base_cam, (4, 4))
-    p_cam = as_array("detection.center_cam", detection.center_cam, (3,))  # type: ignore[attr-defined]
+    p_cam = as_array("detection.center_cam", detection.center_cam, (3,))
     cov_cam = (
         camera_point_covariance(
             p_cam, config.camera_pixel_sigma, focal_px, config.camera_depth_scale
@@ -107,24 +120,32 @@ def measurement_from_detection(
         + np.eye(3) * config.object_sigma_floor**2
     )
     R_base_cam = T_base_cam[:3, :3]
+    box = getattr(detection, "box", None)
     return ObjectMeasurement(
         p_base=R_base_cam @ p_cam + T_base_cam[:3, 3],
         R_base=R_base_cam @ cov_cam @ R_base_cam.T,
-        label=str(detection.label),  # type: ignore[attr-defined]
-        score=float(np.clip(detection.score, 0.0, 1.0)),  # type: ignore[attr-defined]
+        label=str(detection.label),
+        score=float(np.clip(detection.score, 0.0, 1.0)),
         radius=_finite_or_none(getattr(detection, "radius", None)),
         height=_finite_or_none(getattr(detection, "height", None)),
-        box=(
-            tuple(float(v) for v in detection.box)  # type: ignore[attr-defined]
-            if getattr(detection, "box", None) is not None
-            else None
-        ),
+        box=None if box is None else _box(box),
     )
 
 
-def _finite_or_none(value: object) -> float | None:
+def _box(box: Iterable[float]) -> tuple[float, float, float, float]:
+    values = [float(v) for v in box]
+    if len(values) != 4:
+        raise FusionError(f"detection.box must be (x0, y0, x1, y1), got {box!r}")
+    x0, y0, x1, y1 = values
+    return x0, y0, x1, y1
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    """``value`` as a positive finite float, else None (also for what float() cannot take)."""
+    if value is None:
+        return None
     try:
-        v = float(value)  # type: ignore[arg-type]
+        v = float(value)
     except (TypeError, ValueError):
         return None
     return v if math.isfinite(v) and v > 0.0 else None
@@ -198,7 +219,9 @@ class _Track:
 
     def state(self, t: float | None = None) -> TrackState:
         f = self.filter
-        x, P = f.predicted(f.t if t is None else max(t, f.t))  # type: ignore[arg-type]
+        assert f.t is not None  # initialised in __init__
+        t_state = f.t if t is None else max(t, f.t)
+        x, P = f.predicted(t_state)
         p, v, cov = x[:3].copy(), x[3:6].copy(), P.copy()
         for a in (p, v, cov):
             a.flags.writeable = False
@@ -206,7 +229,7 @@ class _Track:
             id=self.id,
             label=self.label,
             confirmed=self.confirmed,
-            t=float(f.t if t is None else max(t, f.t)),  # type: ignore[arg-type]
+            t=float(t_state),
             p_base=p,
             v_base=v,
             cov=cov,

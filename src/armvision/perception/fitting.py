@@ -172,8 +172,8 @@ def fit_circle_geometric(
 
     Points with |residual| > ``scale`` get weight scale / |residual|, so stray points pull
     linearly, not quadratically. Returns (centre, radius, residuals). A few numpy lines per
-    iteration instead of scipy.optimize.least_squares, whose per-call overhead (~2 ms) is
-    a large part of a 33 ms frame budget when a scene holds four objects.
+    iteration instead of scipy.optimize.least_squares, whose per-call overhead is a large
+    part of the frame budget when a scene holds four objects.
     """
     c = np.asarray(center, dtype=float).copy()
     r = float(radius)

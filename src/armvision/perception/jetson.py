@@ -15,6 +15,7 @@ from armvision.perception.detection import (
     NO_CONTEXT,
     Detection,
     FrameContext,
+    Label,
     detections_from_boxes,
 )
 from armvision.perception.learned import COCO91_CLASS_IDS
@@ -35,7 +36,7 @@ class JetsonDetector:
         network: str = "ssd-mobilenet-v2",
         *,
         threshold: float = 0.5,
-        class_ids: dict[str, int] | None = None,
+        class_ids: dict[Label, int] | None = None,
         center_fraction: float = 0.3,
         depth_percentile: float = 25.0,
         net: Any = None,
@@ -57,8 +58,8 @@ class JetsonDetector:
             from jetson_utils import cudaFromNumpy
         except ImportError:
             try:  # jetson-inference before 2022 installs the jetson.* namespace
-                from jetson.inference import detectNet  # type: ignore[no-redef]
-                from jetson.utils import cudaFromNumpy  # type: ignore[no-redef]
+                from jetson.inference import detectNet
+                from jetson.utils import cudaFromNumpy
             except ImportError:
                 raise PerceptionError(
                     "JetsonDetector needs jetson-inference, which runs on NVIDIA Jetson boards "
@@ -89,7 +90,7 @@ class JetsonDetector:
             frame,
             boxes.reshape(-1, 4),
             np.array([float(d.Confidence) for d in picked]),
-            [id_to_label[int(d.ClassID)] for d in picked],  # type: ignore[misc]
+            [id_to_label[int(d.ClassID)] for d in picked],
             self.center_fraction,
             self.depth_percentile,
         )

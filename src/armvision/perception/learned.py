@@ -37,8 +37,8 @@ Array = NDArray[np.float64]
 #: Bottle and cup class ids. COCO with a background class 0 (91 ids, as TF Object Detection
 #: API SSD exports and jetson-inference's ssd-mobilenet-v2 number them) and YOLOv8's 80
 #: contiguous COCO classes.
-COCO91_CLASS_IDS = {"bottle": 44, "cup": 47}
-YOLO_CLASS_IDS = {"bottle": 39, "cup": 41}
+COCO91_CLASS_IDS: dict[Label, int] = {"bottle": 44, "cup": 47}
+YOLO_CLASS_IDS: dict[Label, int] = {"bottle": 39, "cup": 41}
 
 
 def read_labels(path: str | os.PathLike[str]) -> list[str]:
@@ -49,7 +49,7 @@ def read_labels(path: str | os.PathLike[str]) -> list[str]:
         raise PerceptionError(f"cannot read the labels file {path}: {exc.strerror}") from None
 
 
-def class_ids_from_labels(labels: Sequence[str]) -> dict[str, int]:
+def class_ids_from_labels(labels: Sequence[str]) -> dict[Label, int]:
     """{"bottle": id, "cup": id} looked up by name in a labels list."""
     lowered = [name.lower() for name in labels]
     missing = [name for name in LABELS if name not in lowered]
@@ -84,7 +84,7 @@ def letterbox(
         cv2.BORDER_CONSTANT,
         value=(pad_value, pad_value, pad_value),
     )
-    return out, scale, (float(left), float(top))
+    return np.asarray(out, dtype=np.uint8), float(scale), (float(left), float(top))
 
 
 def decode_ssd(
@@ -92,7 +92,7 @@ def decode_ssd(
     classes: Array,
     scores: Array,
     count: Array | int,
-    class_ids: dict[str, int],
+    class_ids: dict[Label, int],
     threshold: float,
     image_size: tuple[int, int],
     box_order: Literal["yxyx", "xyxy"] = "yxyx",
@@ -114,11 +114,11 @@ def decode_ssd(
         b = b * [width, height, width, height]
     id_to_label = {v: k for k, v in class_ids.items()}
     keep = (s >= threshold) & np.isin(c, list(id_to_label))
-    return b[keep], s[keep], [id_to_label[int(i)] for i in c[keep]]  # type: ignore[misc]
+    return b[keep], s[keep], [id_to_label[int(i)] for i in c[keep]]
 
 
 def decode_yolov8(
-    output: Array, class_ids: dict[str, int], threshold: float
+    output: Array, class_ids: dict[Label, int], threshold: float
 ) -> tuple[Array, Array, list[Label]]:
     """Bottle and cup boxes (N, 4) x0, y0, x1, y1 in network-input pixels from a YOLOv8 head.
 
@@ -133,17 +133,17 @@ def decode_yolov8(
     keep = s >= threshold
     cx, cy, w, h = pred[keep, 0], pred[keep, 1], pred[keep, 2], pred[keep, 3]
     b = np.column_stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2])
-    return b, s[keep], [names[i] for i in best[keep]]  # type: ignore[misc]
+    return b, s[keep], [names[i] for i in best[keep]]
 
 
 def nms(
-    boxes: Array, scores: Array, labels: Sequence[str], iou_threshold: float
+    boxes: Array, scores: Array, labels: Sequence[Label], iou_threshold: float
 ) -> NDArray[np.intp]:
     """Indices kept by per-class non-maximum suppression (OpenCV's ``dnn.NMSBoxesBatched``)."""
     if len(boxes) == 0:
         return np.zeros(0, dtype=np.intp)
     xywh = [[float(x0), float(y0), float(x1 - x0), float(y1 - y0)] for x0, y0, x1, y1 in boxes]
-    class_index = [LABELS.index(label) for label in labels]  # type: ignore[arg-type]
+    class_index = [LABELS.index(label) for label in labels]
     kept = cv2.dnn.NMSBoxesBatched(
         xywh, [float(s) for s in scores], class_index, 0.0, iou_threshold
     )
@@ -173,7 +173,7 @@ class OnnxDetector:
         *,
         kind: Literal["ssd", "yolov8"] | None = None,
         labels_path: str | os.PathLike[str] | None = None,
-        class_ids: dict[str, int] | None = None,
+        class_ids: dict[Label, int] | None = None,
         threshold: float = 0.5,
         nms_iou: float = 0.45,
         ssd_box_order: Literal["yxyx", "xyxy"] = "yxyx",
@@ -249,8 +249,8 @@ class OnnxDetector:
             image, scale, (pad_x, pad_y) = letterbox(color, size)
         else:
             size = (w_in or w0, h_in or h0)
-            image = color if size == (w0, h0) else cv2.resize(color, size)
-        tensor = image[None]
+            image = color if size == (w0, h0) else np.asarray(cv2.resize(color, size), np.uint8)
+        tensor: NDArray[np.uint8] | NDArray[np.floating] = image[None]
         if channels_first:
             tensor = tensor.transpose(0, 3, 1, 2)
         if "float" in self.input.type:

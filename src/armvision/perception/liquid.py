@@ -47,10 +47,9 @@ averaged with colour (0.7 / 0.3) when they agree within ``agree_tol``; where dep
 background through the lower body the bottle is empty; where depth has no data at all the
 colour cue stands alone. Confidence drops when the cues disagree or the shoulder is not seen.
 
-Measured on the simulator (``armvision.eval.liquid``, 51 bottles, fill 0-100 %, 5 liquids,
-random sizes, camera and lighting): 1.5 points MAE (each cue alone: depth ~1.8, colour
-8-16 depending on the seed); the Hough method ~44. The shoulder search leans on
-``body_fraction`` (see :class:`LiquidLevelMeter`): for a bottle shape far from it, set it.
+``armvision.eval.liquid`` measures both methods, and each cue alone, on the simulator (the
+figures are in the README). The shoulder search leans on ``body_fraction`` (see
+:class:`LiquidLevelMeter`): for a bottle shape far from it, set it.
 """
 
 from __future__ import annotations
@@ -135,6 +134,12 @@ def _check_inputs(frame: RGBDFrame, box: ArrayLike) -> tuple[int, int, int, int]
     return x0, y0, x1, y1
 
 
+def _median_rgb(pixels: NDArray[np.number]) -> tuple[int, int, int]:
+    """The per-channel median of RGB pixels (..., 3), as integers."""
+    r, g, b = (int(c) for c in np.median(pixels.reshape(-1, 3), axis=0))
+    return r, g, b
+
+
 # --------------------------------------------------------------------------- the paper: Hough
 
 
@@ -190,7 +195,7 @@ def hough_level(
     fill = float(np.clip((h - row) / h, 0.0, 1.0))
     length = float(np.hypot(best[2] - best[0], best[3] - best[1]))
     below = crop[int(row) + 1 :, max(int(0.3 * w), 0) : max(int(0.7 * w), 1)]
-    colour = tuple(int(c) for c in np.median(below.reshape(-1, 3), axis=0)) if below.size else None
+    colour = _median_rgb(below) if below.size else None
     for x_a, y_a, x_b, y_b in flat.astype(int):
         cv2.line(debug, (x_a, y_a), (x_b, y_b), (0, 160, 255), 1)
     cv2.line(debug, (0, round(row)), (w - 1, round(row)), (255, 0, 0), 1)
@@ -198,7 +203,7 @@ def hough_level(
         fill=fill,
         level_row=y0 + row,
         confidence=float(min(1.0, length / w)),
-        colour=colour,  # type: ignore[arg-type]
+        colour=colour,
         method="hough",
         debug=debug,
     )
@@ -249,7 +254,7 @@ class _Frame3D:
     radius: float
     top: float  # whole height above the table, metres
 
-    def points(self, s: Array, t: Array, a: Array | float = 0.0) -> Array:
+    def points(self, s: Array, t: Array | float, a: Array | float = 0.0) -> Array:
         """Camera-frame points at height s, lateral t, away a (broadcast arrays)."""
         s, t, a = np.asarray(s, float), np.asarray(t, float), np.asarray(a, float)
         return (
@@ -499,7 +504,8 @@ class LiquidLevelMeter:
         self, frame: RGBDFrame, box: ArrayLike, geometry: ContainerGeometry
     ) -> LiquidLevel:
         ibox = _check_inputs(frame, box)
-        bf = self._bottle_frame(frame, tuple(float(v) for v in np.ravel(box)), geometry)
+        x0, y0, x1, y1 = (float(v) for v in np.ravel(box))
+        bf = self._bottle_frame(frame, (x0, y0, x1, y1), geometry)
         r, r_liq = bf.radius, max(bf.radius - self.wall, 0.5 * bf.radius)
         s = np.arange(0.0, bf.top, self.step_m)
         body, shoulder_found = self._body_top(frame, bf, s)
@@ -538,17 +544,13 @@ class LiquidLevelMeter:
         fill = float(np.clip((level - self.base) / (body - self.base), 0.0, 1.0))
         level_px = project(frame.intrinsics, bf.points(np.array([level, body]), 0.0))
         below = inner[(s_body < level - 0.003) & (s_body > self.base)]
-        colour = (
-            tuple(int(c) for c in np.median(below.reshape(-1, 3), axis=0))
-            if fill > 0.02 and below.size
-            else None
-        )
+        colour = _median_rgb(below) if fill > 0.02 and below.size else None
         debug = self._debug(frame, ibox, bf, level, body, fill)
         return LiquidLevel(
             fill=fill,
             level_row=float(level_px[0, 1]),
             confidence=float(np.clip(confidence, 0.0, 1.0)),
-            colour=colour,  # type: ignore[arg-type]
+            colour=colour,
             method="profile",
             debug=debug,
             level_m=float(level),

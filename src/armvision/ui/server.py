@@ -698,12 +698,13 @@ class OperatorUI:
             cached = self._jpeg.get(view)
             if cached is not None and cached[0] == frame.index:
                 return cached
-        if view == "depth":
-            image = depth_image(frame.depth, self.settings.depth_min_m, self.settings.depth_max_m)
-        else:
-            image = annotated(state, self.config.tag.size)
-            if image is None:
-                return None
+        image = (
+            depth_image(frame.depth, self.settings.depth_min_m, self.settings.depth_max_m)
+            if view == "depth"
+            else annotated(state, self.config.tag.size)
+        )
+        if image is None:
+            return None
         ok, buf = cv2.imencode(
             ".jpg",
             cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
