@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,9 +42,19 @@ class TaskError(ArmvisionError):
     """A task could not do what it was asked; the message says why and what to do."""
 
 
-#: ``task(ctx, **kwargs)``; it may return anything with ``to_dict()`` (its report), and marks
-#: a failure with ``ok = False`` and a ``reason``, or by raising an ArmvisionError.
+#: ``task(ctx, **kwargs)``; it returns a :class:`TaskReport` (or a JSON-able mapping, or
+#: nothing), and marks a failure with ``ok = False``, or by raising an ArmvisionError.
 Task = Callable[..., Any]
+
+
+@runtime_checkable
+class TaskReport(Protocol):
+    """What a task returns: whether it did what it was asked and a JSON-able report; a failed
+    one says why in ``to_dict()["reason"]``."""
+
+    @property
+    def ok(self) -> bool: ...
+    def to_dict(self) -> dict[str, Any]: ...
 
 
 class FrameView:

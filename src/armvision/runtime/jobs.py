@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from armvision.errors import ArmvisionError
-from armvision.runtime.context import Task, TaskContext, TaskStopped
+from armvision.runtime.context import Task, TaskContext, TaskReport, TaskStopped
 from armvision.runtime.state import TaskPhase, TaskStatus
 
 if TYPE_CHECKING:
@@ -156,10 +156,10 @@ class Jobs:
         halt_error = None
         try:
             value = job.fn(TaskContext(self.system, job.task_id, job.stop), **job.kwargs)
-            result = value.to_dict() if hasattr(value, "to_dict") else value
-            if getattr(value, "ok", True) is False:
+            result = value.to_dict() if isinstance(value, TaskReport) else value
+            if isinstance(value, TaskReport) and not value.ok:
                 phase = "failed"
-                error = getattr(value, "reason", "") or "the task did not succeed"
+                error = str(result.get("reason") or "the task did not succeed")
         except TaskStopped:
             phase, error = "stopped", "stopped by the operator"
             halt_error = self.system.halt_arm()
