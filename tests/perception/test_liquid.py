@@ -228,3 +228,21 @@ def test_evaluation_covers_the_range(evaluation: dict) -> None:
     assert max(radii) - min(radii) > 0.006
     ends = [b for b in bottles if b["fill_true"] in (0.0, 1.0)]
     assert all(abs(b["error_pct"]) <= 5.0 for b in ends), ends
+
+
+def test_bottle_outline_is_the_meter_model_and_pixel_box_bounds_it() -> None:
+    from armvision.camera.frames import pixel_box
+    from armvision.perception.liquid import CAP_RADIUS_FRACTION, bottle_outline
+
+    pts = bottle_outline([0.1, 0.2, 0.0], [0.0, 0.0, 1.0], 0.03, 0.2, 0.72)
+    assert pts.shape == (72, 3)
+    heights = np.round(pts[:, 2], 12)
+    assert sorted(set(heights)) == [0.0, round(0.72 * 0.2, 12), 0.2]
+    radial = np.hypot(pts[:, 0] - 0.1, pts[:, 1] - 0.2)
+    assert np.allclose(radial[heights < 0.2], 0.03)
+    assert np.allclose(radial[heights == 0.2], 0.03 * CAP_RADIUS_FRACTION)
+    # Broadcasting: two parameter sets at once give the two outlines.
+    two = bottle_outline(np.zeros((2, 1, 3)), [0.0, 0.0, 1.0], [[[0.03]], [[0.05]]], 0.2, 0.72)
+    assert two.shape == (2, 72, 3) and np.isclose(np.abs(two[1, :, :2]).max(), 0.05)
+    uv = np.array([[[3.0, 7.0], [10.5, 2.0], [4.0, 9.0]]])
+    assert pixel_box(uv).tolist() == [[3.0, 2.0, 11.5, 10.0]]

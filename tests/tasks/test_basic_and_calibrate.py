@@ -16,7 +16,7 @@ from armvision.geometry import pose_error
 from armvision.robot.kinematics import VX300S
 from armvision.runtime.build import load_calibration
 from armvision.runtime.state import CalibrationStatus
-from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks import basic
 from armvision.tasks.calibrate import calibrate
 

@@ -12,7 +12,7 @@ from armvision.bench.system import sim_system
 from armvision.config import Config, GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.robot.kinematics import VX300S, fk, ik
-from armvision.sim.world import ObjectSpec, SceneSpec, random_camera_pose
+from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.grab import GRASP_MARGIN_M, corridor_clear, grab, plan_grasp, safe_start_pose
 
 

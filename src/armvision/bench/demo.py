@@ -110,7 +110,7 @@ class DemoReport:
 
 def demo_scene(config: Config, seed: int):
     """Two bottles and a cup (random sizes, fills, liquids, yaw), placed without overlap."""
-    from armvision.sim.world import (
+    from armvision.sim.scene import (
         ObjectSpec,
         SceneSpec,
         place_without_overlap,

@@ -23,7 +23,8 @@ from armvision.runtime.state import CalibrationStatus
 from armvision.runtime.system import System
 from armvision.sim.arm import SimArm
 from armvision.sim.camera import SimCamera
-from armvision.sim.world import SceneSpec, SimWorld
+from armvision.sim.scene import SceneSpec
+from armvision.sim.world import SimWorld
 
 Array = NDArray[np.float64]
 

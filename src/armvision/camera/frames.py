@@ -302,3 +302,11 @@ def deproject_image(intr: Intrinsics, depth: ArrayLike) -> Array:
     x, y = _image_rays(intr, d.shape[0], d.shape[1])
     z = d.ravel()
     return np.column_stack([x * z, y * z, z])
+
+
+def pixel_box(uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The box (..., 4) of pixels (..., N, 2): min u, min v, max u + 1, max v + 1."""
+    return np.stack(
+        [uv[..., 0].min(-1), uv[..., 1].min(-1), uv[..., 0].max(-1) + 1, uv[..., 1].max(-1) + 1],
+        axis=-1,
+    )

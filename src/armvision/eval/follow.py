@@ -123,7 +123,7 @@ def _check_path(
 
 def _move_to(ctx: Any, q: Array) -> None:
     """A task: move the arm to joint positions ``q`` in 2 s."""
-    from armvision.runtime.system import TaskError
+    from armvision.runtime.context import TaskError
 
     if not ctx.move_joints(q, moving_time=2.0):
         raise TaskError(f"the arm refused the start pose: {ctx.arm.last_error}")
@@ -231,7 +231,7 @@ def evaluate_follow(
     of ``modes`` is reported as None.
     """
     from armvision.runtime.state import CalibrationStatus
-    from armvision.sim.world import LooseTag, generate_scene
+    from armvision.sim.scene import LooseTag, generate_scene
 
     duration = config.follow.duration_s if duration_s is None else float(duration_s)
     for name, value in (

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from armvision.camera.frames import Intrinsics, project
+from armvision.camera.frames import Intrinsics, pixel_box, project
 from armvision.config import Config
 from armvision.geometry import inv_T
 from armvision.perception.liquid import LiquidLevelMeter
@@ -98,14 +98,8 @@ def true_box_and_mask(
         all_uv.append(uv)
         hull = cv2.convexHull(np.round(uv).astype(np.int32))
         cv2.fillConvexPoly(mask, hull, 1)
-    uv = np.concatenate(all_uv)
-    box = (
-        float(uv[:, 0].min()),
-        float(uv[:, 1].min()),
-        float(uv[:, 0].max()) + 1.0,
-        float(uv[:, 1].max()) + 1.0,
-    )
-    return box, mask.astype(bool)
+    x0, y0, x1, y1 = pixel_box(np.concatenate(all_uv))
+    return (float(x0), float(y0), float(x1), float(y1)), mask.astype(bool)
 
 
 def _segmentation(world: SimWorld, width: int, height: int) -> NDArray[np.int32]:

@@ -23,7 +23,14 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, depth_rms_error, project
+from armvision.camera.frames import (
+    Intrinsics,
+    RGBDFrame,
+    deproject,
+    depth_rms_error,
+    pixel_box,
+    project,
+)
 from armvision.errors import PerceptionError
 from armvision.perception.detection import (
     BOTTLE_BODY_FRACTION,
@@ -61,8 +68,8 @@ def cylinder_box(
     uv = project(intr, rims[rims[:, 2] > 1e-3])
     if len(uv) == 0:
         return (0.0, 0.0, 0.0, 0.0)
-    x0, y0 = np.clip(uv.min(axis=0), 0, [intr.width, intr.height])
-    x1, y1 = np.clip(uv.max(axis=0) + 1.0, 0, [intr.width, intr.height])
+    w, h = intr.width, intr.height
+    x0, y0, x1, y1 = np.clip(pixel_box(uv), 0, [w, h, w, h])
     return (float(x0), float(y0), float(x1), float(y1))
 
 

@@ -62,7 +62,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
+from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, pixel_box, project
 from armvision.errors import PerceptionError
 from armvision.perception.detection import BOTTLE_BODY_FRACTION
 from armvision.perception.fitting import fit_plane
@@ -243,6 +243,42 @@ def _step_split(is_liquid: NDArray[np.bool_]) -> tuple[int, int]:
 # --------------------------------------------------------------------------- default: profile
 
 
+#: The meter's bottle model: a cylinder of the bottle's radius from the foot up to the body
+#: fraction of its height, then a neck and cap this fraction of the radius wide at the top.
+CAP_RADIUS_FRACTION = 0.47
+
+
+def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
+    """Two unit vectors (e1, e2) that span the plane normal to the unit vector ``up``."""
+    up = np.asarray(up, dtype=float)
+    e1 = np.cross(up, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(up, e1)
+
+
+def unit_ring(up: ArrayLike, n: int = 24) -> Array:
+    """``n`` points (n, 3) on the unit circle around the axis ``up``."""
+    e1, e2 = plane_basis(up)
+    ang = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
+
+
+def bottle_outline(
+    foot: ArrayLike, up: ArrayLike, radius: ArrayLike, height: ArrayLike, body_fraction: float
+) -> Array:
+    """Points (..., 72, 3) outlining the model bottle standing at ``foot`` along ``up``: rings
+    of 24 at the foot, the shoulder and the top. Leading dimensions of ``foot``, ``radius`` and
+    ``height`` broadcast (the meter fits many parameter sets at once)."""
+    ring = unit_ring(up)
+    foot, up = np.asarray(foot, dtype=float), np.asarray(up, dtype=float)
+    r, h = np.asarray(radius, dtype=float), np.asarray(height, dtype=float)
+    rings = [
+        foot + (frac * h) * up + (scale * r) * ring
+        for frac, scale in ((0.0, 1.0), (body_fraction, 1.0), (1.0, CAP_RADIUS_FRACTION))
+    ]
+    return np.concatenate(rings, axis=-2)
+
+
 @dataclass(frozen=True)
 class _Frame3D:
     """The bottle's frame in the camera frame: foot on the table, up, away, lateral."""
@@ -408,29 +444,17 @@ class LiquidLevelMeter:
         parameters (foot on the table: 2, radius, height). This undoes the lean of bottles
         off the image centre, which widens the box beyond the bottle's own width.
         """
-        e1 = np.cross(up, [1.0, 0.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(up, e1)
-        ang = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
-        ca, sa = np.cos(ang), np.sin(ang)
+        e1, e2 = plane_basis(up)
         target = np.asarray(box, dtype=float)
         mask = np.array([free[0], free[0], free[1], free[2]])
-
-        ring = ca[:, None] * e1 + sa[:, None] * e2  # (24, 3) unit circle on the table
 
         def bboxes(params: Array) -> Array:
             """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection."""
             a, b, r, h = params.T[:, :, None, None]
             centre = foot + a * e1 + b * e2  # (M, 1, 3)
-            rings = [
-                centre + (frac * h) * up + (rad * r) * ring
-                for frac, rad in ((0.0, 1.0), (self.body_fraction, 1.0), (1.0, 0.47))
-            ]
-            pts = np.concatenate(rings, axis=1)  # (M, 72, 3)
+            pts = bottle_outline(centre, up, r, h, self.body_fraction)  # (M, 72, 3)
             uv = project(intr, pts.reshape(-1, 3)).reshape(len(params), -1, 2)
-            return np.column_stack(
-                [uv[..., 0].min(1), uv[..., 1].min(1), uv[..., 0].max(1) + 1, uv[..., 1].max(1) + 1]
-            )
+            return pixel_box(uv)
 
         p = np.array([0.0, 0.0, radius, top])
         eps = 1e-4

@@ -42,7 +42,7 @@ Why the gripper's radius: the object detector fits the circle of what returns de
 clear bottle's wall returns none, so for a clear bottle its radius is the liquid's or the
 cap's, 3-10 mm short (measured on the simulator), and the meter then looks for the shoulder's
 silhouette edges too far in. Closed on the bottle, each finger stands
-:data:`~armvision.tasks.carry.PAD_INSET_M` outside the bottle's wall, so the finger position
+:data:`~armvision.robot.vx300s.FINGER_PAD_INSET` outside the bottle's wall, so the finger position
 gives the radius to ~1 mm.
 
 Measured on the simulator (default camera placement and lighting, object stage at 5 Hz, 8

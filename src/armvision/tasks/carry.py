@@ -25,15 +25,13 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.robot.kinematics import ik
+from armvision.robot.vx300s import FINGER_PAD_INSET
 from armvision.runtime.context import TaskContext
 from armvision.tasks.grab import GRASP_MARGIN_M, HOVER_CLEARANCE_M, GrabResult, safe_start_pose
 from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 Array = NDArray[np.float64]
 
-#: Interbotix vx300s fingers: each pad sits this far inboard of the finger joint's coordinate
-#: (pads 17 mm apart at the closed 0.021 m), so closed on a bottle finger = radius + this, m.
-PAD_INSET_M = 0.0125
 #: A finger-measured radius outside this range is not believed (the track's is used), m.
 RADIUS_RANGE_M = (0.01, 0.07)
 #: Releasing, the gripper backs off until its fingertips are this far from the bottle, m.
@@ -91,7 +89,7 @@ class Held:
         height = float(grabbed.height if grabbed.height is not None else 2.0 * grabbed.target[2])
         table_z = grabbed.target[2] - 0.5 * height
         grasp_offset = grabbed.grasp_z - table_z
-        radius = finger - PAD_INSET_M
+        radius = finger - FINGER_PAD_INSET  # closed on a bottle, finger = radius + inset
         if not RADIUS_RANGE_M[0] <= radius <= RADIUS_RANGE_M[1]:
             radius = float(track.radius or 0.03)
         tallest = max([table_z, *obstacle_tops])

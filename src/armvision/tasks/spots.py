@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, project
+from armvision.camera.frames import Intrinsics, pixel_box, project
 from armvision.geometry import inv_T, make_T, rpy_to_R
 from armvision.perception.detection import BOTTLE_BODY_FRACTION
+from armvision.perception.liquid import bottle_outline
 from armvision.robot.kinematics import ArmModel
 from armvision.tasks.carry import BACKOFF_MARGIN_M, EMPTY_MAX_PITCH_DEG
 from armvision.tasks.grab import GRIPPER_HALF_WIDTH_M, HOVER_CLEARANCE_M
@@ -59,28 +60,13 @@ def bottle_box(
     height: float,
     body_fraction: float = BOTTLE_BODY_FRACTION,
 ) -> Box:
-    """Pixel box (x0, y0, x1, y1) of an upright bottle standing at ``p_base_foot``.
-
-    The bottle as the liquid meter models it: a cylinder of ``radius`` from the foot up to
-    ``body_fraction`` of ``height``, then a neck and cap of about half the radius; the box
-    bounds the projection of rings of 24 points at the foot, the shoulder and the top.
-    """
-    ang = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
-    circle = np.column_stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)])
-    foot = np.asarray(p_base_foot, dtype=float)
-    rings = [
-        foot + circle * (scale * radius) + [0.0, 0.0, frac * height]
-        for frac, scale in ((0.0, 1.0), (body_fraction, 1.0), (1.0, 0.5))
-    ]
+    """Pixel box (x0, y0, x1, y1) of an upright bottle standing at ``p_base_foot``: the
+    liquid meter's bottle model (:func:`~armvision.perception.liquid.bottle_outline`) as the
+    camera at ``T_cam_base`` sees it."""
+    pts_base = bottle_outline(p_base_foot, [0.0, 0.0, 1.0], radius, height, body_fraction)
     T = np.asarray(T_cam_base, dtype=float)
-    pts_cam = np.concatenate(rings) @ T[:3, :3].T + T[:3, 3]
-    uv = project(intr, pts_cam)
-    return (
-        float(uv[:, 0].min()),
-        float(uv[:, 1].min()),
-        float(uv[:, 0].max()) + 1.0,
-        float(uv[:, 1].max()) + 1.0,
-    )
+    x0, y0, x1, y1 = pixel_box(project(intr, pts_base @ T[:3, :3].T + T[:3, 3]))
+    return (float(x0), float(y0), float(x1), float(y1))
 
 
 def _segment_distance(p: Array, a: Array, b: Array) -> float:
