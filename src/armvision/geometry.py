@@ -94,6 +94,12 @@ def pose_error(T_w_a: ArrayLike, T_w_b: ArrayLike) -> tuple[Array, Array]:
     return dp, rotation_angle(R_rel)
 
 
+def as_xyz(p: ArrayLike) -> tuple[float, float, float]:
+    """A 3-vector as three plain floats (for reports and JSON)."""
+    x, y, z = (float(v) for v in np.asarray(p, dtype=float).reshape(3))
+    return x, y, z
+
+
 def skew(v: ArrayLike) -> Array:
     """[v]x, the 3x3 matrix with [v]x w = v x w."""
     x, y, z = np.asarray(v, dtype=float)

@@ -179,7 +179,9 @@ def evaluate_liquid(
                 ms_profile.append(1e3 * (t1 - t0))
                 ms_hough.append(1e3 * (t2 - t1))
                 # What each cue alone would have said, with the same body top.
-                span = prof.body_height_m - profile_meter.base
+                body = prof.body_height_m
+                assert body is not None  # the profile method always reports the body top
+                span = body - profile_meter.base
                 cue_fill = {
                     cue: None
                     if level is None

@@ -199,7 +199,7 @@ def _motion_model(dt: float, order: int, density: float) -> tuple[Array, Array]:
     else:
         raise FusionError(f"motion model order must be 2 (cv) or 3 (ca), not {order}")
     eye3 = np.eye(3)
-    return np.kron(F1, eye3), np.kron(Q1, eye3)
+    return np.asarray(np.kron(F1, eye3), dtype=float), np.asarray(np.kron(Q1, eye3), dtype=float)
 
 
 def encoder_joint_variance(noise_rad: float) -> float:
@@ -419,7 +419,7 @@ class MotionFilter:
         self.noise_density = float(noise_density)
         walk = np.zeros(int(n_extra)) if extra_walk is None else np.asarray(extra_walk, float)
         if walk.shape != (int(n_extra),) or np.any(walk < 0) or not np.all(np.isfinite(walk)):
-            raise FusionError(f"extra_walk must be {n_extra} densities >= 0, got {extra_walk}")
+            raise FusionError(f"extra_walk must be {n_extra} densities >= 0, got {extra_walk!r}")
         self.extra_walk = walk
         self.gate_probability = gate_probability
         self.adaptive = bool(adaptive)
@@ -503,15 +503,18 @@ class MotionFilter:
         own (when ``gate`` and a gate probability is set) and the accepted ones are stacked
         into one Joseph update.
         """
-        gating = gate and self.gate_probability is not None
+        probability = self.gate_probability
+        gating = gate and probability is not None
+
+        def threshold(dim: int) -> float:
+            return math.inf if probability is None else gate_threshold(probability, dim)
+
         nis = [self._nis(m) for m in measurements]
         if self.adaptive and measurements:
             before = self.q_scale
             capped = [
                 (
-                    min(d2, ADAPTIVE_NIS_CAP * gate_threshold(self.gate_probability, len(m.z)))
-                    if gating
-                    else d2,
+                    min(d2, ADAPTIVE_NIS_CAP * threshold(len(m.z))) if gating else d2,
                     len(m.z),
                 )
                 for d2, m in zip(nis, measurements)
@@ -526,7 +529,7 @@ class MotionFilter:
         accepted: list[bool] = []
         restart: Measurement | None = None
         for d2, m in zip(nis, measurements):
-            ok = not gating or d2 <= gate_threshold(self.gate_probability, len(m.z))  # type: ignore[arg-type]
+            ok = not gating or d2 <= threshold(len(m.z))
             if ok:
                 self._consecutive[m.source] = 0
             else:
@@ -651,12 +654,15 @@ class EEEstimate:
         return 1000.0 * math.sqrt(max(float(np.trace(self.cov[:3, :3])), 0.0))
 
 
+def _read_only(a: Array) -> Array:
+    """A read-only copy of ``a``."""
+    out = np.array(a, dtype=float)
+    out.flags.writeable = False
+    return out
+
+
 def _frozen(a: Array | None) -> Array | None:
-    if a is None:
-        return None
-    a = np.array(a, dtype=float)
-    a.flags.writeable = False
-    return a
+    return None if a is None else _read_only(a)
 
 
 @dataclass(frozen=True)
@@ -797,9 +803,9 @@ class EEFilter:
         b = x[self._b]
         return EEEstimate(
             t=t_out,
-            p_base=_frozen(x[:3]),
-            v_base=_frozen(x[3:6]),
-            cov=_frozen(P[:6, :6]),
+            p_base=_read_only(x[:3]),
+            v_base=_read_only(x[3:6]),
+            cov=_read_only(P[:6, :6]),
             encoder_bias=_frozen(b) if self.bias_model == "joint" else None,
             cartesian_bias=_frozen(b) if self.bias_model == "cartesian" else None,
             camera_correction=_frozen(x[self._xi]) if self.estimate_camera_pose else None,
@@ -897,10 +903,15 @@ class EEFilter:
         """Fuse one event: in order, merged with one at the same time, or late and replayed."""
         core = self.core
         if core.t is None:
-            x0, P0 = self._prior(measurements[0].z)  # type: ignore[union-attr]
+            first = measurements[0]
+            if not isinstance(first, Measurement):
+                raise FusionError("a filter starts from a measurement, not a deferred one")
+            x0, P0 = self._prior(first.z)
             core.initialize(t, x0, P0)
+        t_core = core.t
+        assert t_core is not None  # initialised above
         newest = self._events[-1].t if self._events else -math.inf
-        if t > newest + SAME_TIME_S and t >= core.t - SAME_TIME_S:
+        if t > newest + SAME_TIME_S and t >= t_core - SAME_TIME_S:
             self._checkpoints.append(core.checkpoint())
             self._events.append(_Event(t, tuple(measurements)))
             self._apply(self._events[-1])
@@ -932,7 +943,10 @@ class EEFilter:
         self.core.update([m for m in built if m is not None])
 
     def _prune(self) -> None:
-        horizon = self.core.t - self.config.history_s  # type: ignore[operator]
+        t_core = self.core.t
+        if t_core is None:
+            return
+        horizon = t_core - self.config.history_s
         k = bisect.bisect_left([c.t for c in self._checkpoints], horizon)
         k = min(k, len(self._checkpoints) - 1)  # keep the newest, so merging always works
         if k > 0:

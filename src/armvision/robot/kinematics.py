@@ -88,10 +88,10 @@ class ArmModel:
         return _SphericalWristGeometry.from_model(self)
 
     @cached_property
-    def _screw_matrices(self) -> tuple[Array, Array, Array, Array]:
+    def _screw_matrices(self) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
         """[w], [w]^2, v and a prismatic flag per joint, stacked for :func:`joint_exponentials`."""
-        W = np.array([skew(S[:3]) for S in self.Slist])
-        prismatic = ~self.Slist[:, :3].any(axis=1)
+        W = np.array([skew(S[:3]) for S in self.Slist], dtype=float)
+        prismatic = np.logical_not(np.any(self.Slist[:, :3], axis=1))
         return W, W @ W, self.Slist[:, 3:].copy(), prismatic
 
     @cached_property
@@ -104,21 +104,25 @@ _PI_LIMIT = np.pi - 1e-5
 
 VX300S = ArmModel(
     name="vx300s",
-    M=[[1.0, 0.0, 0.0, 0.536494], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.42705], [0, 0, 0, 1]],
-    Slist=[
-        [0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0, -0.12705, 0.0, 0.0],
-        [0.0, 1.0, 0.0, -0.42705, 0.0, 0.05955],
-        [1.0, 0.0, 0.0, 0.0, 0.42705, 0.0],
-        [0.0, 1.0, 0.0, -0.42705, 0.0, 0.35955],
-        [1.0, 0.0, 0.0, 0.0, 0.42705, 0.0],
-    ],
+    M=np.array(
+        [[1.0, 0.0, 0.0, 0.536494], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.42705], [0, 0, 0, 1]]
+    ),
+    Slist=np.array(
+        [
+            [0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, -0.12705, 0.0, 0.0],
+            [0.0, 1.0, 0.0, -0.42705, 0.0, 0.05955],
+            [1.0, 0.0, 0.0, 0.0, 0.42705, 0.0],
+            [0.0, 1.0, 0.0, -0.42705, 0.0, 0.35955],
+            [1.0, 0.0, 0.0, 0.0, 0.42705, 0.0],
+        ]
+    ),
     joint_names=("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate"),
-    lower=[-_PI_LIMIT, -1.850049, -1.762783, -_PI_LIMIT, -1.867502, -_PI_LIMIT],
-    upper=[_PI_LIMIT, 1.256637, 1.605703, _PI_LIMIT, 2.234021, _PI_LIMIT],
-    velocity=[np.pi] * 6,
-    home=[0.0] * 6,
-    sleep=[0.0, -1.85, 1.55, 0.0, 0.8, 0.0],
+    lower=np.array([-_PI_LIMIT, -1.850049, -1.762783, -_PI_LIMIT, -1.867502, -_PI_LIMIT]),
+    upper=np.array([_PI_LIMIT, 1.256637, 1.605703, _PI_LIMIT, 2.234021, _PI_LIMIT]),
+    velocity=np.full(6, np.pi),
+    home=np.zeros(6),
+    sleep=np.array([0.0, -1.85, 1.55, 0.0, 0.8, 0.0]),
 )
 
 
@@ -420,14 +424,13 @@ def _ik_position_priority(T_base_ee: Array, seed: Array, model: ArmModel) -> tup
         dist = np.hypot(r, dz)
         in_reach |= (dist >= lo - 1e-9) & (dist <= hi + 1e-9)
     order = np.argsort(-(_DIRECTIONS @ x_goal))
-    best_d, best_sols = None, None
-    for k in order[in_reach[order]]:
-        sols = solve(_DIRECTIONS[k])
-        if sols:
-            best_d, best_sols = _DIRECTIONS[k], sols
-            break
-    if best_d is None:
+    found = next(
+        ((_DIRECTIONS[k], sols) for k in order[in_reach[order]] if (sols := solve(_DIRECTIONS[k]))),
+        None,
+    )
+    if found is None:
         return seed, False
+    best_d, best_sols = found
 
     def angle(d: Array) -> float:
         return float(np.arccos(np.clip(d @ x_goal, -1.0, 1.0)))

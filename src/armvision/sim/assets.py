@@ -61,14 +61,14 @@ def tag_image(
     code = np.ascontiguousarray(np.rot90(code, 2))
     code = np.pad(code, white_border_cells, constant_values=255)
     side = code.shape[0] * pixels_per_cell
-    return cv2.resize(code, (side, side), interpolation=cv2.INTER_NEAREST)
+    scaled = cv2.resize(code, (side, side), interpolation=cv2.INTER_NEAREST)
+    return np.asarray(scaled, dtype=np.uint8)
 
 
 def png_bytes(image: NDArray[np.uint8]) -> bytes:
     """PNG encoding of a greyscale or RGB image (RGB channel order)."""
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", image)
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    ok, buf = cv2.imencode(".png", bgr)
     if not ok:  # pragma: no cover - OpenCV always encodes uint8 images
         raise SimulationError("OpenCV could not encode a texture as PNG")
     return buf.tobytes()

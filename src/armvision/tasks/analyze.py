@@ -72,7 +72,7 @@ from armvision.camera.frames import RGBDFrame
 from armvision.config import AnalyzeConfig
 from armvision.errors import PerceptionError
 from armvision.fusion.tracker import TrackState
-from armvision.geometry import inv_T
+from armvision.geometry import as_xyz, inv_T
 from armvision.perception.detection import Detection
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel
 from armvision.runtime.context import TaskContext
@@ -222,7 +222,7 @@ class _Analyze:
             picked=self.picked,
             position=self.position
             if self.position is not None or track is None
-            else tuple(float(v) for v in track.p_base),
+            else as_xyz(track.p_base),
             box_height_px=None if samples is None else samples.box_height,
             view=view if est is not None else None,
             duration_s=self.ctx.now() - self.start,

@@ -47,7 +47,7 @@ class GripperResult:
 
 
 def _named_pose(ctx: TaskContext, pose: str) -> MoveResult:
-    model = ctx.arm.model  # type: ignore[attr-defined]
+    model = ctx.arm.model
     q = np.asarray(getattr(model, pose), dtype=float)
     start = ctx.now()
     ctx.progress(0.0, f"moving to the {pose} pose")

@@ -30,6 +30,7 @@ from armvision.calibration.procedure import calibrate as run_calibration
 from armvision.calibration.procedure import pose_errors
 from armvision.calibration.quality import check_quality
 from armvision.errors import CalibrationError
+from armvision.geometry import as_xyz
 from armvision.runtime.build import result_status
 from armvision.runtime.context import TaskContext, TaskError
 
@@ -51,7 +52,11 @@ class _TaskArm:
         return getattr(self._ctx.arm, name)
 
     def set_joint_positions(
-        self, joint_positions: ArrayLike, moving_time: float | None = None, blocking: bool = True
+        self,
+        joint_positions: ArrayLike,
+        moving_time: float | None = None,
+        accel_time: float | None = None,
+        blocking: bool = True,
     ) -> bool:
         return self._ctx.move_joints(joint_positions, moving_time)
 
@@ -102,7 +107,7 @@ def calibrate(
     """Sample, solve, check, switch the running system to the result, save it (module doc)."""
     arm = _TaskArm(ctx)
     ctx.progress(0.0, "moving home to start")
-    if not ctx.move_joints(ctx.arm.model.home):  # type: ignore[attr-defined]
+    if not ctx.move_joints(ctx.arm.model.home):
         raise TaskError(f"the arm cannot reach its home pose to start: {ctx.arm.last_error}")
 
     def progress(done: int, total: int, message: str) -> None:
@@ -119,7 +124,7 @@ def calibrate(
         )
     except CalibrationError:
         ctx.progress(0.96, "calibration refused; moving home")
-        ctx.move_joints(ctx.arm.model.home)  # type: ignore[attr-defined]
+        ctx.move_joints(ctx.arm.model.home)
         raise
     status = result_status(result)
     saved, save_error, warnings = None, None, []
@@ -146,7 +151,7 @@ def calibrate(
     else:
         done = "calibrated and in use"
     ctx.progress(0.98, "; ".join([done, *warnings, "moving home"]))
-    ctx.move_joints(ctx.arm.model.home)  # type: ignore[attr-defined]
+    ctx.move_joints(ctx.arm.model.home)
     fit = result.fit
     offsets = None if fit.joint_offsets is None else np.degrees(fit.joint_offsets)
     return CalibrateResult(
@@ -154,7 +159,7 @@ def calibrate(
         samples=len(result.samples),
         used=int(fit.used.sum()),
         residual_mm=1000.0 * float(fit.rms_m),
-        camera_xyz_m=tuple(float(v) for v in status.T_base_cam[:3, 3]),  # type: ignore[arg-type]
+        camera_xyz_m=as_xyz(status.T_base_cam[:3, 3]),
         joint_offsets_deg=None if offsets is None else tuple(float(v) for v in offsets),
         saved=saved,
         error_mm=None if errors is None else errors["translation_error_mm"],

@@ -123,7 +123,7 @@ class Carrier:
         if found is not None:
             return found
         raise Abort(
-            f"the gripper cannot reach ({', '.join(f'{v:.3f}' for v in p)}) m facing "
+            f"the gripper cannot reach ({', '.join(f'{v:.3f}' for v in np.asarray(p))}) m facing "
             f"{math.degrees(yaw):.0f} degrees"
         )
 

@@ -49,6 +49,6 @@ def colour_name(rgb: ArrayLike | None) -> str | None:
     :data:`LIGHTNESS_WEIGHT`; None for None. E.g. (126, 153, 180) -> "light blue"."""
     if rgb is None:
         return None
-    d = _PALETTE_LAB - _lab([rgb])[0]
+    d = _PALETTE_LAB - _lab(np.asarray(rgb, dtype=float).reshape(1, 3))[0]
     d[:, 0] *= LIGHTNESS_WEIGHT
     return _PALETTE_NAMES[int(np.argmin(np.einsum("ij,ij->i", d, d)))]

@@ -212,7 +212,9 @@ class _TrackTarget:
         return self._p + self._v * (min(t, horizon) - self._t), v
 
     def newest(self) -> Array | None:
-        return None if self._p is None else self._p + self._v * (self.last_seen - self._t)
+        if self._p is None or self.last_seen is None:
+            return None
+        return self._p + self._v * (self.last_seen - self._t)
 
 
 # --------------------------------------------------------------------------- the result

@@ -36,7 +36,7 @@ import numpy as np
 
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
-from armvision.geometry import make_T, rot_z
+from armvision.geometry import as_xyz, make_T, rot_z
 from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.state import SystemState
@@ -191,7 +191,7 @@ class _Grab:
             ok=ok,
             reason=reason,
             track_id=None if plan is None else plan.track.id,
-            target=None if plan is None else tuple(float(v) for v in plan.track.p_base),
+            target=None if plan is None else as_xyz(plan.track.p_base),
             height=None if plan is None else plan.track.height,
             grasp_z=None if plan is None else plan.grasp_z,
             finger=finger,
