@@ -26,7 +26,7 @@ reported too, and so is the Cartesian random-walk variant of the filter
 the object detector use is the true one perturbed by a seeded error of ``calibration_error``
 = (metres, degrees) in random directions, applied in the camera frame (so the camera's
 position is off by exactly that translation and its orientation by that angle), the accuracy
-the calibration issue targets. The perturbation is reported in the result.
+the calibration aims for. The perturbation is reported in the result.
 
 **Objects.** A scene from the seed's camera placement with three bottles and a cup standing
 side by side as the camera sees them, the arm asleep, seen through the real perception path

@@ -1,4 +1,4 @@
-"""Fusion of camera and joint encoders, and tracking of bottles and cups (issue 6).
+"""Fusion of camera and joint encoders, and tracking of bottles and cups.
 
 - :mod:`armvision.fusion.kalman`: the paper's 7-state filter (:class:`PaperKF`, for reference)
   and the default end-effector filter (:class:`EEFilter`) with its building blocks.
