@@ -454,7 +454,7 @@ class _Analyze:
             grabbed, carrier.finger(), track, [ob.top for ob in obstacles], self.grab_cfg
         )
         self.position = grabbed.target
-        carrier.last_T = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
+        carrier.T_base_ee_last = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
         return None
 
     def choose_spot(self, obstacles: list[Obstacle]) -> Spot | None:

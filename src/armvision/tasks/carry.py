@@ -54,9 +54,9 @@ class Abort(Exception):  # noqa: N818 - control flow inside the analyze task
     """Ends the analysis with a reason (becomes AnalyzeResult.ok = False)."""
 
 
-def _yaw(T: Array) -> float:
+def _yaw(T_base_x: Array) -> float:
     """Heading of a pose's x axis in the base's xy plane, rad."""
-    return math.atan2(T[1, 0], T[0, 0])
+    return math.atan2(T_base_x[1, 0], T_base_x[0, 0])
 
 
 @dataclass(frozen=True)
@@ -102,14 +102,15 @@ class Held:
 class Carrier:
     """The arm's moves while the analysed bottle is off its place (the module docstring).
 
-    ``held`` is the picked bottle (None before the pick), ``last_T`` the last pose commanded
-    (straight moves start there), ``where`` where the bottle is, for a failure's reason.
+    ``held`` is the picked bottle (None before the pick), ``T_base_ee_last`` the last pose
+    commanded (straight moves start there), ``where`` where the bottle is, for a failure's
+    reason.
     """
 
     def __init__(self, ctx: TaskContext, grab_cfg: GrabConfig) -> None:
         self.ctx, self.grab_cfg = ctx, grab_cfg
         self.held: Held | None = None
-        self.last_T: Array | None = None
+        self.T_base_ee_last: Array | None = None
         self.where = "in its place"
 
     # ------------------------------------------------------------ one move
@@ -119,7 +120,7 @@ class Carrier:
         near the last commanded pose (wrist unflipped), else pitched down in 5 degree steps up
         to ``max_pitch_deg``; Abort if neither."""
         arm = self.ctx.arm
-        found = level_pose(p, yaw, motion_seed(arm, self.last_T), arm.model, max_pitch_deg)
+        found = level_pose(p, yaw, motion_seed(arm, self.T_base_ee_last), arm.model, max_pitch_deg)
         if found is not None:
             return found
         raise Abort(
@@ -127,15 +128,15 @@ class Carrier:
             f"{math.degrees(yaw):.0f} degrees"
         )
 
-    def move(self, what: str, T: Array, q: Array, duration: float) -> None:
+    def move(self, what: str, T_base_ee: Array, q: Array, duration: float) -> None:
         """One checked move taking at least ``duration`` (longer if a joint would exceed
         :data:`~armvision.tasks.motion.SPEED_FRACTION` of its velocity limit); Abort with the
         arm's reason."""
         arm = self.ctx.arm
         duration = paced_time(arm, q, duration)
-        if not self.ctx.move_pose(T, moving_time=duration, custom_guess=q):
+        if not self.ctx.move_pose(T_base_ee, moving_time=duration, custom_guess=q):
             raise Abort(f"{what}: {arm.last_error or 'the arm refused the move'}")
-        self.last_T = T
+        self.T_base_ee_last = T_base_ee
 
     def straight(
         self, what: str, p_goal: ArrayLike, yaw_goal: float, max_pitch_deg: int = 0
@@ -144,9 +145,9 @@ class Carrier:
         :data:`SEGMENT_M` at :data:`CARRY_SPEED_M_S`, the yaw turning evenly to ``yaw_goal``,
         each point as level as :meth:`pose` finds (one joint-space move near the table can
         sweep the gripper through what stands there)."""
-        assert self.last_T is not None
-        p_from = self.last_T[:3, 3].copy()
-        yaw_from = _yaw(self.last_T)
+        assert self.T_base_ee_last is not None
+        p_from = self.T_base_ee_last[:3, 3].copy()
+        yaw_from = _yaw(self.T_base_ee_last)
         turn = (yaw_goal - yaw_from + math.pi) % (2 * math.pi) - math.pi
         p_goal = np.asarray(p_goal, dtype=float)
         length = float(np.linalg.norm(p_goal - p_from))
@@ -165,10 +166,10 @@ class Carrier:
         """Carry the held bottle at the carry height to above ``xy``, stand it there, release
         it and :meth:`retreat`."""
         held = self.held
-        assert held is not None and self.last_T is not None
+        assert held is not None and self.T_base_ee_last is not None
         yaw = math.atan2(xy[1], xy[0])
-        p = self.last_T[:3, 3]
-        self.straight("lift for carrying", [p[0], p[1], held.carry_z], _yaw(self.last_T))
+        p = self.T_base_ee_last[:3, 3]
+        self.straight("lift for carrying", [p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last))
         self.straight("carry", [xy[0], xy[1], held.carry_z], yaw)
         self.straight("lower onto the table", [xy[0], xy[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
         self.ctx.open_gripper()

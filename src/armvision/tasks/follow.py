@@ -65,7 +65,7 @@ from scipy.spatial.transform import Rotation
 from armvision.config import FollowConfig
 from armvision.geometry import make_T, rpy_to_R
 from armvision.robot.base import STREAM_MAX_STEP_S
-from armvision.robot.kinematics import VX300S, ArmModel, fk
+from armvision.robot.kinematics import ArmModel, fk
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.state import SystemState
 from armvision.tasks.servo import MAX_EXTRAPOLATION_S, ServoGains, TargetEstimator, servo_step
@@ -425,7 +425,7 @@ def _encoder_error(ctx: TaskContext, model: ArmModel, p_des: Array) -> tuple[Arr
 
 def _servo(ctx: TaskContext, config: FollowConfig, source: Any, duration: float) -> FollowResult:
     arm = ctx.arm
-    model: ArmModel = getattr(arm, "model", VX300S)
+    model = arm.model
     gains = ServoGains.from_config(config)
     period = 1.0 / config.rate_hz
     start = ctx.now()
@@ -530,7 +530,7 @@ def _blocking(
     duration: float,
     moving_time: float | None,
 ) -> FollowResult:
-    model: ArmModel = getattr(ctx.arm, "model", VX300S)
+    model = ctx.arm.model
     period = 1.0 / config.rate_hz
     start = ctx.now()
     stats = _Stats(start)

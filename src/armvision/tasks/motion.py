@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from armvision.geometry import make_T, rpy_to_R
+from armvision.robot.base import Arm
 from armvision.robot.kinematics import ArmModel, ik
 
 Array = NDArray[np.float64]
@@ -25,20 +26,20 @@ MAX_JOINT_STEP_RAD = 1.2
 SPEED_FRACTION = 0.5
 
 
-def unflipped_ik(T: Array, seed: Array, model: ArmModel) -> Array | None:
-    """Joint angles for ``T`` near ``seed`` with the wrist unflipped (forearm roll and wrist
+def unflipped_ik(T_base_ee: Array, seed: Array, model: ArmModel) -> Array | None:
+    """Joint angles for ``T_base_ee`` near ``seed`` with the wrist unflipped (forearm roll and wrist
     rotate within +-90 degrees), or None."""
-    q, ok = ik(T, seed, model)
+    q, ok = ik(T_base_ee, seed, model)
     if ok and abs(q[3]) < math.pi / 2 and abs(q[5]) < math.pi / 2:
         return q
     return None
 
 
-def motion_seed(arm, last_T: Array | None) -> Array:
+def motion_seed(arm: Arm, T_base_ee_last: Array | None) -> Array:
     """The joints to look for the next solution near: those of the last commanded pose (the
     encoder reading if there is none yet), so consecutive points stay on one IK branch."""
     q_now = np.asarray(arm.get_joint_positions(), dtype=float)
-    return q_now if last_T is None else ik(last_T, q_now, arm.model)[0]
+    return q_now if T_base_ee_last is None else ik(T_base_ee_last, q_now, arm.model)[0]
 
 
 def level_pose(
