@@ -167,8 +167,6 @@ def run_demo(
     from armvision.bench.system import sim_system, sim_world
     from armvision.runtime.build import load_calibration
     from armvision.runtime.view import annotated
-    from armvision.tasks.analyze import analyze
-    from armvision.tasks.grab import grab
 
     started = time.monotonic()
     report = DemoReport(seed=seed)
@@ -186,66 +184,14 @@ def run_demo(
         system.pump(system.clock() + DETECT_S)
         state = system.snapshot()
         matched = _report_detection(report, state, truth)
-
-        for name, obj in truth.items():
-            if obj.spec.kind != "bottle" or name not in matched:
-                continue
-            track_id = matched[name]
-            say(f"analysing the bottle of track {track_id}")
-            status = system.run_task("analyze", analyze, track_id=track_id)
-            result = status.result or {}
-            fill = result.get("fill") if status.phase == "succeeded" else None
-            err = math.nan if fill is None else abs(fill - obj.spec.fill)
-            colour = result.get("colour_name") or result.get("colour") or "-"
-            report.add(
-                "analyze",
-                f"{name} (track {track_id})",
-                f"fill {100 * fill:.1f} % {colour}"
-                if fill is not None
-                else (status.error or "failed"),
-                f"fill {100 * obj.spec.fill:.1f} % {obj.spec.liquid}",
-                f"{100 * err:.1f} points" if fill is not None else "-",
-                fill is not None and err <= FILL_TOL,
-            )
+        _analyse_bottles(system, report, truth, matched, say)
 
         frame_state = system.snapshot()
         image = annotated(frame_state, config.tag.size, newest=False)
 
-        say("grabbing a bottle")
-        start_z = {n: float(o.T_base_obj[2, 3]) for n, o in truth.items()}
-        status = system.run_task("grab", grab)
-        system.pump(system.clock() + HOLD_S)
-        held = world.held_object()
-        lift = None if held is None else float(world.T_base_object(held)[2, 3]) - start_z[held]
-        result = status.result or {}
-        report.add(
-            "grab",
-            f"{held or 'nothing'} held" if held else "bottle",
-            (
-                f"{status.phase} in {result.get('duration_s', math.nan):.1f} s"
-                + (f", lifted {100 * lift:.1f} cm" if lift is not None else "")
-            )
-            if status.phase == "succeeded"
-            else f"{status.phase}: {status.error}",
-            f"held >= {100 * LIFT_TOL_M:.0f} cm up after {HOLD_S:.0f} s",
-            "-",
-            status.phase == "succeeded"
-            and held is not None
-            and truth[held].spec.kind == "bottle"
-            and lift is not None
-            and lift >= LIFT_TOL_M,
-        )
+        _grab_bottle(system, world, report, truth, say)
         report.sim_seconds = system.clock()
-        health = system.snapshot().health
-        dead = [h.name for h in health.values() if h.last_error is not None]
-        report.add(
-            "runtime",
-            "stages",
-            f"fusion {health['fusion'].rate_hz:.0f} Hz, errors: {', '.join(dead) or 'none'}",
-            f"{config.fusion.rate_hz:.0f} Hz",
-            "-",
-            not dead,
-        )
+        _report_runtime(config, system, report)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -254,6 +200,76 @@ def run_demo(
         _write_png(report.image_path, image)
     report.seconds = time.monotonic() - started
     return report
+
+
+def _analyse_bottles(
+    system: Any, report: DemoReport, truth: dict, matched: dict[str, int], say: Callable
+) -> None:
+    """Analyse each tracked bottle in place; a row each, its fill against the truth."""
+    from armvision.tasks.analyze import analyze
+
+    for name, obj in truth.items():
+        if obj.spec.kind != "bottle" or name not in matched:
+            continue
+        track_id = matched[name]
+        say(f"analysing the bottle of track {track_id}")
+        status = system.run_task("analyze", analyze, track_id=track_id)
+        result = status.result or {}
+        fill = result.get("fill") if status.phase == "succeeded" else None
+        err = math.nan if fill is None else abs(fill - obj.spec.fill)
+        colour = result.get("colour_name") or result.get("colour") or "-"
+        report.add(
+            "analyze",
+            f"{name} (track {track_id})",
+            f"fill {100 * fill:.1f} % {colour}" if fill is not None else (status.error or "failed"),
+            f"fill {100 * obj.spec.fill:.1f} % {obj.spec.liquid}",
+            f"{100 * err:.1f} points" if fill is not None else "-",
+            fill is not None and err <= FILL_TOL,
+        )
+
+
+def _grab_bottle(system: Any, world: Any, report: DemoReport, truth: dict, say: Callable) -> None:
+    """Grab a bottle and hold it HOLD_S; a row: held, a bottle, lifted LIFT_TOL_M or more."""
+    from armvision.tasks.grab import grab
+
+    say("grabbing a bottle")
+    start_z = {n: float(o.T_base_obj[2, 3]) for n, o in truth.items()}
+    status = system.run_task("grab", grab)
+    system.pump(system.clock() + HOLD_S)
+    held = world.held_object()
+    lift = None if held is None else float(world.T_base_object(held)[2, 3]) - start_z[held]
+    result = status.result or {}
+    report.add(
+        "grab",
+        f"{held or 'nothing'} held" if held else "bottle",
+        (
+            f"{status.phase} in {result.get('duration_s', math.nan):.1f} s"
+            + (f", lifted {100 * lift:.1f} cm" if lift is not None else "")
+        )
+        if status.phase == "succeeded"
+        else f"{status.phase}: {status.error}",
+        f"held >= {100 * LIFT_TOL_M:.0f} cm up after {HOLD_S:.0f} s",
+        "-",
+        status.phase == "succeeded"
+        and held is not None
+        and truth[held].spec.kind == "bottle"
+        and lift is not None
+        and lift >= LIFT_TOL_M,
+    )
+
+
+def _report_runtime(config: Config, system: Any, report: DemoReport) -> None:
+    """A row for the stages: the fusion rate achieved, and none stopped by an error."""
+    health = system.snapshot().health
+    dead = [h.name for h in health.values() if h.last_error is not None]
+    report.add(
+        "runtime",
+        "stages",
+        f"fusion {health['fusion'].rate_hz:.0f} Hz, errors: {', '.join(dead) or 'none'}",
+        f"{config.fusion.rate_hz:.0f} Hz",
+        "-",
+        not dead,
+    )
 
 
 def _report_detection(report: DemoReport, state, truth: dict) -> dict[str, int]:

@@ -632,12 +632,9 @@ def _parse(data: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def load(path: str | os.PathLike) -> StoredCalibration:
-    """Read and validate a calibration file; a one-line CalibrationError naming the file and
-    saying what to do on any problem."""
-    path = Path(path)
-    name = _name(path)
-    redo = "run `armvision calibrate` to make a new one"
+def _read_raw(path: Path, name: str, redo: str) -> bytes:
+    """The bytes of the calibration file at ``path`` (a regular file of at most
+    :data:`_MAX_BYTES`); CalibrationError if it is missing, not a file, too big or unreadable."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -660,22 +657,23 @@ def load(path: str | os.PathLike) -> StoredCalibration:
         )
     try:
         with open(path, "rb") as f:
-            raw = f.read(_MAX_BYTES)
+            return f.read(_MAX_BYTES)
     except OSError as exc:
         raise CalibrationError(
             f"cannot read the calibration {name} ({_reason(exc)}): check its permissions, or {redo}"
         ) from None
-    restore = ""
-    with contextlib.suppress(OSError, ValueError):
-        if backup_path(path).is_file():
-            restore = f"restore the previous calibration from {_name(backup_path(path))}, "
+
+
+def _decode(raw: bytes, path: Path, where: str, restore: str, redo: str) -> Any:
+    """The JSON value of a calibration file's bytes; CalibrationError if they are no UTF-8
+    JSON (pointing at the backup, named in ``restore``, when there is one)."""
     damaged = f"it is damaged: {restore}or {redo}"
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CalibrationError(f"{where} is not UTF-8 text (byte {exc.start}): {damaged}") from None
     try:
-        data = json.loads(text, parse_constant=_refuse_constant)
+        return json.loads(text, parse_constant=_refuse_constant)
     except RecursionError:
         raise CalibrationError(
             f"{where} is nested too deeply to be a calibration: {damaged}"
@@ -689,6 +687,12 @@ def load(path: str | os.PathLike) -> StoredCalibration:
     except ValueError as exc:
         reason = _reason(exc) if isinstance(exc, _NotJSONError) else _reason(exc).split(":")[0]
         raise CalibrationError(f"{where} is not valid JSON ({reason}): {damaged}") from None
+
+
+def _check_header(data: Any, where: str, restore: str, redo: str) -> dict[str, Any]:
+    """``data`` if it is an armvision calibration of a version this armvision reads;
+    CalibrationError if not."""
+    damaged = f"it is damaged: {restore}or {redo}"
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise CalibrationError(
             f'{where} is not an armvision calibration (no "schema": "{SCHEMA}"): point'
@@ -704,6 +708,22 @@ def load(path: str | os.PathLike) -> StoredCalibration:
             f"{where} has version {_show(version)}, newer than this armvision reads"
             f" ({VERSION}): upgrade armvision, or {redo}"
         )
+    return data
+
+
+def load(path: str | os.PathLike) -> StoredCalibration:
+    """Read and validate a calibration file; a one-line CalibrationError naming the file and
+    saying what to do on any problem."""
+    path = Path(path)
+    name = _name(path)
+    redo = "run `armvision calibrate` to make a new one"
+    raw = _read_raw(path, name, redo)
+    where = f"calibration file {name}"
+    restore = ""
+    with contextlib.suppress(OSError, ValueError):
+        if backup_path(path).is_file():
+            restore = f"restore the previous calibration from {_name(backup_path(path))}, "
+    data = _check_header(_decode(raw, path, where, restore, redo), where, restore, redo)
     try:
         fields = _parse(data)
     except _MissingFieldError as exc:

@@ -211,6 +211,72 @@ def _run_mode(
     }
 
 
+def _check_arguments(
+    config: Config,
+    duration: float,
+    speed: float,
+    radius: float,
+    settle_s: float,
+    modes: tuple[str, ...],
+) -> None:
+    """ConfigError for an argument of :func:`evaluate_follow` that makes no run."""
+    for name, value in (
+        ("duration_s", duration),
+        ("speed", speed),
+        ("radius", radius),
+    ):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ConfigError(f"{name} must be a positive number, not {value}")
+    if not 0.0 <= settle_s < duration:
+        raise ConfigError(f"settle_s must be in [0, duration_s = {duration}), not {settle_s}")
+    unknown = [m for m in modes if m not in MODES]
+    if unknown or not modes:
+        raise ConfigError(f"modes must be some of {MODES}, not {modes}")
+    if config.follow.tag_id == config.tag.id:
+        raise ConfigError(
+            f"follow.tag_id {config.follow.tag_id} is the gripper tag; choose another id"
+        )
+
+
+def _follow_scene(
+    config: Config,
+    seed: int,
+    center: tuple[float, float],
+    radius: float,
+    speed: float,
+) -> tuple[Any, Callable[[float], Array], float, float]:
+    """The seed's scene with the loose tag at the start of its circle: (scene, path,
+    start angle, direction)."""
+    from armvision.sim.scene import LooseTag, generate_scene
+
+    rng = np.random.default_rng([seed, 0xF011])
+    phase = float(rng.uniform(-math.pi, math.pi))
+    direction = float(rng.choice([-1.0, 1.0]))
+    yaw = float(rng.uniform(-math.pi, math.pi))
+    path = circle_path(center, radius, speed, phase, direction, yaw)
+    start = path(0.0)[:3, 3]
+    base_scene = generate_scene(config, seed)
+    tag = LooseTag(config.follow.tag_id, float(start[0]), float(start[1]), yaw, config.tag.size)
+    scene = dataclasses.replace(base_scene, loose_tags=(tag,))
+    return scene, path, phase, direction
+
+
+def _summary(runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    def pick(mode: str, key: str) -> Any:
+        return runs[mode][key] if mode in runs else None
+
+    return {
+        "rms_error_mm_servo": pick("servo", "rms_error_mm"),
+        "rms_error_mm_blocking": pick("blocking", "rms_error_mm"),
+        "max_error_mm_servo": pick("servo", "max_error_mm"),
+        "max_error_mm_blocking": pick("blocking", "max_error_mm"),
+        "rate_hz_servo": pick("servo", "rate_hz"),
+        "rate_hz_blocking": pick("blocking", "rate_hz"),
+        "time_lost_s_servo": pick("servo", "time_lost_s"),
+        "time_lost_s_blocking": pick("blocking", "time_lost_s"),
+    }
+
+
 def evaluate_follow(
     config: Config,
     seed: int = 0,
@@ -231,40 +297,15 @@ def evaluate_follow(
     of ``modes`` is reported as None.
     """
     from armvision.runtime.state import CalibrationStatus
-    from armvision.sim.scene import LooseTag, generate_scene
 
     duration = config.follow.duration_s if duration_s is None else float(duration_s)
-    for name, value in (
-        ("duration_s", duration),
-        ("speed", speed),
-        ("radius", radius),
-    ):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ConfigError(f"{name} must be a positive number, not {value}")
-    if not 0.0 <= settle_s < duration:
-        raise ConfigError(f"settle_s must be in [0, duration_s = {duration}), not {settle_s}")
-    unknown = [m for m in modes if m not in MODES]
-    if unknown or not modes:
-        raise ConfigError(f"modes must be some of {MODES}, not {modes}")
-    if config.follow.tag_id == config.tag.id:
-        raise ConfigError(
-            f"follow.tag_id {config.follow.tag_id} is the gripper tag; choose another id"
-        )
-
+    _check_arguments(config, duration, speed, radius, settle_s, modes)
     config = dataclasses.replace(
         config,
         sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0, loose_tags=0),
         runtime=dataclasses.replace(config.runtime, object_detection=False, liquid_detection=False),
     )
-    rng = np.random.default_rng([seed, 0xF011])
-    phase = float(rng.uniform(-math.pi, math.pi))
-    direction = float(rng.choice([-1.0, 1.0]))
-    yaw = float(rng.uniform(-math.pi, math.pi))
-    path = circle_path(center, radius, speed, phase, direction, yaw)
-    start = path(0.0)[:3, 3]
-    base_scene = generate_scene(config, seed)
-    tag = LooseTag(config.follow.tag_id, float(start[0]), float(start[1]), yaw, config.tag.size)
-    scene = dataclasses.replace(base_scene, loose_tags=(tag,))
+    scene, path, phase, direction = _follow_scene(config, seed, center, radius, speed)
     lap = 2.0 * math.pi * radius / speed
 
     T_true = np.asarray(scene.T_base_cam, dtype=float)
@@ -278,23 +319,9 @@ def evaluate_follow(
         mode: _run_mode(config, seed, scene, calibration, path, lap, mode, duration, settle_s)
         for mode in modes
     }
-
-    def pick(mode: str, key: str) -> Any:
-        return runs[mode][key] if mode in runs else None
-
-    summary = {
-        "rms_error_mm_servo": pick("servo", "rms_error_mm"),
-        "rms_error_mm_blocking": pick("blocking", "rms_error_mm"),
-        "max_error_mm_servo": pick("servo", "max_error_mm"),
-        "max_error_mm_blocking": pick("blocking", "max_error_mm"),
-        "rate_hz_servo": pick("servo", "rate_hz"),
-        "rate_hz_blocking": pick("blocking", "rate_hz"),
-        "time_lost_s_servo": pick("servo", "time_lost_s"),
-        "time_lost_s_blocking": pick("blocking", "time_lost_s"),
-    }
     return {
         "seed": seed,
-        "summary": summary,
+        "summary": _summary(runs),
         "path": {
             "center_m": list(center),
             "radius_m": radius,

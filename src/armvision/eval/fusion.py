@@ -179,6 +179,190 @@ class _RecordingArm:
 # --------------------------------------------------------------------------- end effector
 
 
+def _camera_pose_error(T_base_cam: Array, T_base_cam_true: Array) -> tuple[float, float]:
+    """How far a camera pose is from the true one: (millimetres, degrees)."""
+    dp = np.linalg.norm(T_base_cam[:3, 3] - T_base_cam_true[:3, 3])
+    dr = Rotation.from_matrix(T_base_cam[:3, :3].T @ T_base_cam_true[:3, :3]).magnitude()
+    return 1000.0 * float(dp), math.degrees(float(dr))
+
+
+def _ee_calibration(
+    T_base_cam_true: Array,
+    seed: int,
+    T_base_cam_estimate: Array | None,
+    calibration_error: tuple[float, float],
+) -> tuple[Array, dict[str, Any]]:
+    """The camera pose the estimators use (given, or the truth perturbed) and its report."""
+    if T_base_cam_estimate is None:
+        T_est, calibration = perturbed_calibration(T_base_cam_true, seed, *calibration_error)
+    else:
+        T_est = np.asarray(T_base_cam_estimate, dtype=float)
+        calibration = {"source": "given"}
+    mm, deg = _camera_pose_error(T_est, T_base_cam_true)
+    calibration["camera_position_error_mm"] = mm
+    calibration["camera_rotation_error_deg"] = deg
+    return T_est, calibration
+
+
+class _EERun:
+    """The estimators of the end-effector evaluation fed the same readings tick by tick, and
+    what each said beside the truth (``rows``) and the raw error of each source."""
+
+    def __init__(
+        self,
+        fusion: Any,
+        world: Any,
+        camera: Any,
+        arm: Any,
+        detector: Any,
+        T_est: Array,
+        T_ee_tag: Array,
+    ) -> None:
+        self.world = world
+        self.detector = detector
+        self.T_est = T_est
+        self.T_tag_ee = inv_T(T_ee_tag)
+        self.recorder = _RecordingArm(arm)
+        self.schedule = _FrameSchedule(camera)
+        fx = camera.intrinsics.fx
+        self.loop = FusionLoop(
+            fusion, self.recorder, T_est, T_ee_tag, clock=lambda: world.time, focal_px=fx
+        )
+        self.camera_only = EEFilter(fusion, T_est, T_ee_tag, focal_px=fx, use_encoders=False)
+        self.encoders_only = EEFilter(fusion, T_est, T_ee_tag, focal_px=fx, use_camera=False)
+        self.cartesian = EEFilter(
+            dataclasses.replace(fusion, encoder_bias="cartesian", estimate_camera_pose=False),
+            T_est,
+            T_ee_tag,
+            focal_px=fx,
+        )
+        self.dt = 1.0 / fusion.rate_hz
+        self.paper = PaperKF(T_est, dt=self.dt)
+        self.rows: dict[str, list[Array]] = {
+            k: [] for k in ("truth", "fused", "camera", "encoders", "paper", "cartesian")
+        }
+        self.raw_camera: list[Array] = []
+        self.raw_encoders: list[Array] = []
+        self.frames = 0
+        self.detected = 0
+
+    def _read_frames(self, tick: float) -> list[tuple[float, Array]]:
+        """Frames due by ``tick``: render and detect (the read advances the world to the frame
+        time); the (capture time, T_cam_tag) of each tag seen."""
+        new_tags: list[tuple[float, Array]] = []
+        while self.schedule.due(self.world.time) <= tick + 1e-9:
+            frame = self.schedule.read()
+            self.frames += 1
+            tags = self.detector.detect(frame)
+            if tags:
+                self.detected += 1
+                new_tags.append((frame.timestamp, tags[0].T_cam_tag))
+                p_est = (self.T_est @ tags[0].T_cam_tag @ self.T_tag_ee)[:3, 3]
+                self.raw_camera.append(p_est - self.world.T_base_ee()[:3, 3])
+        return new_tags
+
+    def step(self, tick: float) -> None:
+        """One tick: the frames due, the world run to ``tick``, every estimator updated."""
+        new_tags = self._read_frames(tick)
+        self.world.run_until(tick)
+        for t_tag, T_cam_tag in new_tags:
+            self.loop.push_tag(t_tag, T_cam_tag)
+        snapshot = self.loop.step()
+        q = self.recorder.last
+        # The step read the encoders (through the recorder) and fused them.
+        assert q is not None and snapshot.ee is not None
+        t_now = snapshot.time
+        truth = self.world.T_base_ee()[:3, 3]
+        self.encoders_only.update_encoders(t_now, q)
+        self.cartesian.update_encoders(t_now, q)
+        for t_tag, T_cam_tag in new_tags:
+            self.camera_only.update_camera(t_tag, T_cam_tag)
+            self.cartesian.update_camera(t_tag, T_cam_tag)
+        p_fk = fk(q)[:3, 3]
+        self.raw_encoders.append(p_fk - truth)
+        self._step_paper(p_fk, new_tags)
+        self._record(t_now, truth, np.asarray(snapshot.ee.p_base))
+
+    def _step_paper(self, p_fk: Array, new_tags: list[tuple[float, Array]]) -> None:
+        paper = self.paper
+        if paper.P[0, 0] == 1.0 and paper.x[0] == 0.0:  # first tick: start at the encoders
+            paper.x[:3] = p_fk
+            paper.P[:3, :3] = np.eye(3) * 1e-4
+        if new_tags:  # the paper alternates: the camera when it has a new pose
+            paper.step(p_cam=(new_tags[-1][1] @ self.T_tag_ee)[:3, 3])
+        else:
+            paper.step(p_base=p_fk)
+
+    def _record(self, t_now: float, truth: Array, fused: Array) -> None:
+        rows = self.rows
+        rows["truth"].append(truth)
+        rows["fused"].append(fused)
+        rows["encoders"].append(np.asarray(self.encoders_only.estimate(t_now).p_base))
+        rows["cartesian"].append(np.asarray(self.cartesian.estimate(t_now).p_base))
+        rows["paper"].append(self.paper.position)
+        rows["camera"].append(
+            np.asarray(self.camera_only.estimate(t_now).p_base)
+            if self.camera_only.time is not None
+            else np.full(3, np.nan)
+        )
+
+
+def _run_motion(world: Any, arm: Any, poses: list[Array], move_time: float, run: _EERun) -> None:
+    """From ``poses[0]`` through the others, ``move_time`` each without stopping in between,
+    a tick of ``run`` every fusion period until 0.5 s after the last move ends."""
+    next_pose = 1
+    move_end = world.time
+    tick = world.time
+    end = math.inf
+    while tick < end:
+        if world.time >= move_end - 1e-9 and next_pose < len(poses):
+            if arm.set_ee_pose_matrix(poses[next_pose], moving_time=move_time, blocking=False):
+                move_end = world.time + move_time
+            next_pose += 1
+            if next_pose == len(poses):
+                end = move_end + 0.5
+        tick += run.dt
+        run.step(tick)
+
+
+def _ee_result(run: _EERun, waypoints: int, encoder_bias: Array) -> dict[str, Any]:
+    """The end-effector figures of a finished run."""
+    rows = run.rows
+    truth = np.array(rows["truth"])
+    rmse = {}
+    for name in ("fused", "camera", "encoders", "paper", "cartesian"):
+        est = np.array(rows[name])
+        ok = np.all(np.isfinite(est), axis=1)
+        rmse[name] = _rmse_mm(est[ok] - truth[ok])
+    final = run.loop.snapshot()
+    ee = final.ee
+    stats = final.ee_stats
+    frames = run.frames
+    return {
+        "ticks": len(truth),
+        "seconds": len(truth) * run.dt,
+        "waypoints": waypoints,
+        "frames": frames,
+        "tag_detection_rate": run.detected / frames if frames else 0.0,
+        "rmse_mm": rmse,
+        "raw_rmse_mm": {
+            "camera": _rmse_mm(np.array(run.raw_camera)),
+            "encoders": _rmse_mm(run.raw_encoders),
+        },
+        "encoder_bias_true_deg": np.degrees(encoder_bias).tolist(),
+        "encoder_bias_estimated_deg": None
+        if ee is None or ee.encoder_bias is None
+        else np.degrees(ee.encoder_bias).tolist(),
+        "camera_correction_estimated": None
+        if ee is None or ee.camera_correction is None
+        else {
+            "rotation_deg": np.degrees(ee.camera_correction[:3]).tolist(),
+            "translation_mm": (1000.0 * ee.camera_correction[3:]).tolist(),
+        },
+        "filter_stats": dataclasses.asdict(stats),
+    }
+
+
 def _evaluate_ee(
     config: Config,
     seed: int,
@@ -195,142 +379,27 @@ def _evaluate_ee(
     empty = dataclasses.replace(
         config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0)
     )
-    fusion = config.fusion
     with SimWorld(empty, seed) as world, SimCamera(world) as camera:
         arm = SimArm(world)
         T_base_cam_true = world.T_base_cam()
-        if T_base_cam_estimate is None:
-            T_est, calibration = perturbed_calibration(T_base_cam_true, seed, *calibration_error)
-        else:
-            T_est = np.asarray(T_base_cam_estimate, dtype=float)
-            calibration = {"source": "given"}
-        dp = np.linalg.norm(T_est[:3, 3] - T_base_cam_true[:3, 3])
-        dr = Rotation.from_matrix(T_est[:3, :3].T @ T_base_cam_true[:3, :3]).magnitude()
-        calibration["camera_position_error_mm"] = 1000.0 * float(dp)
-        calibration["camera_rotation_error_deg"] = math.degrees(float(dr))
+        T_est, calibration = _ee_calibration(
+            T_base_cam_true, seed, T_base_cam_estimate, calibration_error
+        )
         T_ee_tag = world.T_ee_tag
-        T_tag_ee = inv_T(T_ee_tag)
         rng = np.random.default_rng([seed, 0xF05])
         poses = scripted_waypoints(rng, T_est, T_ee_tag, camera.intrinsics, waypoints)
         detector = TagDetector.from_config(config.tag, ids=[config.tag.id])
         if not arm.set_ee_pose_matrix(poses[0], moving_time=2.0):
             raise RuntimeError(f"cannot reach the first waypoint: {arm.last_error}")
-
-        recorder = _RecordingArm(arm)
-        schedule = _FrameSchedule(camera)
-        fx = camera.intrinsics.fx
-        loop = FusionLoop(fusion, recorder, T_est, T_ee_tag, clock=lambda: world.time, focal_px=fx)
-        camera_only = EEFilter(fusion, T_est, T_ee_tag, focal_px=fx, use_encoders=False)
-        encoders_only = EEFilter(fusion, T_est, T_ee_tag, focal_px=fx, use_camera=False)
-        cartesian = EEFilter(
-            dataclasses.replace(fusion, encoder_bias="cartesian", estimate_camera_pose=False),
-            T_est,
-            T_ee_tag,
-            focal_px=fx,
-        )
-        dt = 1.0 / fusion.rate_hz
-        paper = PaperKF(T_est, dt=dt)
-        rows: dict[str, list[Array]] = {
-            k: [] for k in ("truth", "fused", "camera", "encoders", "paper", "cartesian")
-        }
-        raw_camera: list[Array] = []
-        raw_encoders: list[Array] = []
-        frames = detected = 0
-        next_pose = 1
-        move_end = world.time
-        tick = world.time
-        end = math.inf
-        while tick < end:
-            if world.time >= move_end - 1e-9 and next_pose < len(poses):
-                if arm.set_ee_pose_matrix(poses[next_pose], moving_time=move_time, blocking=False):
-                    move_end = world.time + move_time
-                next_pose += 1
-                if next_pose == len(poses):
-                    end = move_end + 0.5
-            tick += dt
-            new_tags: list[tuple[float, Array]] = []
-            # Frames due by this tick: render (the read advances the world to the frame time).
-            while schedule.due(world.time) <= tick + 1e-9:
-                frame = schedule.read()
-                frames += 1
-                tags = detector.detect(frame)
-                if tags:
-                    detected += 1
-                    new_tags.append((frame.timestamp, tags[0].T_cam_tag))
-                    p_est = (T_est @ tags[0].T_cam_tag @ T_tag_ee)[:3, 3]
-                    raw_camera.append(p_est - world.T_base_ee()[:3, 3])
-            world.run_until(tick)
-            for t_tag, T_cam_tag in new_tags:
-                loop.push_tag(t_tag, T_cam_tag)
-            snapshot = loop.step()
-            q = recorder.last
-            # The step read the encoders (through the recorder) and fused them.
-            assert q is not None and snapshot.ee is not None
-            t_now = snapshot.time
-            truth = world.T_base_ee()[:3, 3]
-            encoders_only.update_encoders(t_now, q)
-            cartesian.update_encoders(t_now, q)
-            for t_tag, T_cam_tag in new_tags:
-                camera_only.update_camera(t_tag, T_cam_tag)
-                cartesian.update_camera(t_tag, T_cam_tag)
-            p_fk = fk(q)[:3, 3]
-            raw_encoders.append(p_fk - truth)
-            if paper.P[0, 0] == 1.0 and paper.x[0] == 0.0:  # first tick: start at the encoders
-                paper.x[:3] = p_fk
-                paper.P[:3, :3] = np.eye(3) * 1e-4
-            if new_tags:  # the paper alternates: the camera when it has a new pose
-                paper.step(p_cam=(new_tags[-1][1] @ T_tag_ee)[:3, 3])
-            else:
-                paper.step(p_base=p_fk)
-            rows["truth"].append(truth)
-            rows["fused"].append(np.asarray(snapshot.ee.p_base))
-            rows["encoders"].append(np.asarray(encoders_only.estimate(t_now).p_base))
-            rows["cartesian"].append(np.asarray(cartesian.estimate(t_now).p_base))
-            rows["paper"].append(paper.position)
-            rows["camera"].append(
-                np.asarray(camera_only.estimate(t_now).p_base)
-                if camera_only.time is not None
-                else np.full(3, np.nan)
-            )
+        run = _EERun(config.fusion, world, camera, arm, detector, T_est, T_ee_tag)
+        _run_motion(world, arm, poses, move_time, run)
         arm.close()
 
-    truth = np.array(rows["truth"])
-    rmse = {}
-    for name in ("fused", "camera", "encoders", "paper", "cartesian"):
-        est = np.array(rows[name])
-        ok = np.all(np.isfinite(est), axis=1)
-        rmse[name] = _rmse_mm(est[ok] - truth[ok])
-    final = loop.snapshot()
-    ee = final.ee
-    stats = final.ee_stats
-    result = {
-        "ticks": len(truth),
-        "seconds": len(truth) * dt,
-        "waypoints": len(poses),
-        "frames": frames,
-        "tag_detection_rate": detected / frames if frames else 0.0,
-        "rmse_mm": rmse,
-        "raw_rmse_mm": {
-            "camera": _rmse_mm(np.array(raw_camera)),
-            "encoders": _rmse_mm(raw_encoders),
-        },
-        "encoder_bias_true_deg": np.degrees(arm.encoder_bias).tolist(),
-        "encoder_bias_estimated_deg": None
-        if ee is None or ee.encoder_bias is None
-        else np.degrees(ee.encoder_bias).tolist(),
-        "camera_correction_estimated": None
-        if ee is None or ee.camera_correction is None
-        else {
-            "rotation_deg": np.degrees(ee.camera_correction[:3]).tolist(),
-            "translation_mm": (1000.0 * ee.camera_correction[3:]).tolist(),
-        },
-        "filter_stats": dataclasses.asdict(stats),
-    }
-    refined = loop.ee_filter.T_base_cam_refined()
-    dp = np.linalg.norm(refined[:3, 3] - T_base_cam_true[:3, 3])
-    dr = Rotation.from_matrix(refined[:3, :3].T @ T_base_cam_true[:3, :3]).magnitude()
-    calibration["refined_camera_position_error_mm"] = 1000.0 * float(dp)
-    calibration["refined_camera_rotation_error_deg"] = math.degrees(float(dr))
+    result = _ee_result(run, len(poses), arm.encoder_bias)
+    refined = run.loop.ee_filter.T_base_cam_refined()
+    mm, deg = _camera_pose_error(refined, T_base_cam_true)
+    calibration["refined_camera_position_error_mm"] = mm
+    calibration["refined_camera_rotation_error_deg"] = deg
     return result, T_est, refined, T_base_cam_true, calibration
 
 
@@ -455,42 +524,71 @@ def _track_metrics(
     }
 
 
-def _evaluate_objects(
-    config: Config,
-    seed: int,
-    calibrations: dict[str, Array],
-    static_s: float,
-    moving_s: float,
-    crossing_s: float,
-    match_radius: float,
-) -> dict[str, Any]:
-    """Track the four objects with one fusion loop per camera pose in ``calibrations``.
-
-    The detector (which needs the camera pose only for the table prior and the self-filter)
-    runs once per frame with the first calibration; every loop gets the same detections.
-    """
-    from armvision.perception.detection import FrameContext
-    from armvision.perception.geometric import GeometricDetector
-    from armvision.sim.arm import SimArm
-    from armvision.sim.camera import SimCamera
-    from armvision.sim.world import SimWorld
-
-    scene, starts = _object_scene(config, seed)
-    at, _, stages = _object_paths(starts, static_s, moving_s, crossing_s)
-    radii = np.array([o.radius for o in scene.objects])
-    # The design must never make two objects touch (they would knock each other over).
+def _min_gap(at: Callable[[float], Array], radii: Array, total: float) -> float:
+    """The least clearance between two objects' sides along the paths, metres; RuntimeError
+    under 1 cm (the design must never make two objects touch: they would knock each other
+    over)."""
     min_gap = math.inf
-    for t in np.linspace(0.0, static_s + moving_s + crossing_s, 600):
+    for t in np.linspace(0.0, total, 600):
         xy = at(float(t))
         for i in range(4):
             for j in range(i + 1, 4):
                 min_gap = min(min_gap, float(np.linalg.norm(xy[i] - xy[j]) - radii[i] - radii[j]))
     if min_gap < 0.01:
         raise RuntimeError(f"object paths come within {1000 * min_gap:.0f} mm of touching")
+    return min_gap
+
+
+def _push_frames(
+    schedule: _FrameSchedule,
+    world: Any,
+    tick: float,
+    detector: Any,
+    T_detector: Array,
+    arm: Any,
+    loops: dict[str, FusionLoop],
+) -> float | None:
+    """Detect in the frames due by ``tick`` and give every loop the detections; the newest
+    frame's capture time (None: no frame was due)."""
+    from armvision.perception.detection import FrameContext
+
+    frame_time = None
+    while schedule.due(world.time) <= tick + 1e-9:
+        frame = schedule.read()
+        context = FrameContext(T_detector, arm.get_joint_positions())
+        detections = detector.detect(frame, context)
+        for loop in loops.values():
+            loop.push_detections(frame.timestamp, detections)
+        frame_time = frame.timestamp
+    return frame_time
+
+
+def _true_centres(world: Any, scene: Any) -> list[Array]:
+    """Each object's centre now (on its axis, half-way up), base frame."""
+    truth = []
+    for o in scene.objects:
+        T_base_obj = world.T_base_object(o.name)
+        truth.append(T_base_obj[:3, 3] + T_base_obj[:3, 2] * o.height / 2.0)
+    return truth
+
+
+def _track_objects(
+    config: Config,
+    seed: int,
+    scene: Any,
+    at: Callable[[float], Array],
+    calibrations: dict[str, Array],
+    total: float,
+) -> dict[str, list[dict[str, Any]]]:
+    """Move the objects along ``at`` for ``total`` seconds, one fusion loop per calibration;
+    per calibration, a record per tick with a new frame (time, truth, confirmed tracks)."""
+    from armvision.perception.geometric import GeometricDetector
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
+    from armvision.sim.world import SimWorld
 
     fusion = config.fusion
     names = [o.name for o in scene.objects]
-    heights = [o.height for o in scene.objects]
     yaws = [o.yaw for o in scene.objects]
     records: dict[str, list[dict[str, Any]]] = {name: [] for name in calibrations}
     with SimWorld(config, seed, scene=scene) as world, SimCamera(world) as camera:
@@ -511,29 +609,18 @@ def _evaluate_objects(
         dt = 1.0 / fusion.rate_hz
         schedule = _FrameSchedule(camera)
         t0 = world.time
-        total = static_s + moving_s + crossing_s
         tick = t0
         while tick - t0 < total - 1e-9:
             tick += dt
             xy = at(tick - t0)
             for k, name in enumerate(names):
                 world.set_object_pose(name, make_T(rot_z(yaws[k]), [xy[k, 0], xy[k, 1], 0.0]))
-            frame_time = None
-            while schedule.due(world.time) <= tick + 1e-9:
-                frame = schedule.read()
-                context = FrameContext(T_detector, arm.get_joint_positions())
-                detections = detector.detect(frame, context)
-                for loop in loops.values():
-                    loop.push_detections(frame.timestamp, detections)
-                frame_time = frame.timestamp
+            frame_time = _push_frames(schedule, world, tick, detector, T_detector, arm, loops)
             world.run_until(tick)
             snapshots = {name: loop.step() for name, loop in loops.items()}
             if frame_time is None:
                 continue
-            truth = []
-            for name, h in zip(names, heights):
-                T_base_obj = world.T_base_object(name)
-                truth.append(T_base_obj[:3, 3] + T_base_obj[:3, 2] * h / 2.0)
+            truth = _true_centres(world, scene)
             for name, snapshot in snapshots.items():
                 records[name].append(
                     {
@@ -547,6 +634,29 @@ def _evaluate_objects(
                     }
                 )
         arm.close()
+    return records
+
+
+def _evaluate_objects(
+    config: Config,
+    seed: int,
+    calibrations: dict[str, Array],
+    static_s: float,
+    moving_s: float,
+    crossing_s: float,
+    match_radius: float,
+) -> dict[str, Any]:
+    """Track the four objects with one fusion loop per camera pose in ``calibrations``.
+
+    The detector (which needs the camera pose only for the table prior and the self-filter)
+    runs once per frame with the first calibration; every loop gets the same detections.
+    """
+    scene, starts = _object_scene(config, seed)
+    at, _, stages = _object_paths(starts, static_s, moving_s, crossing_s)
+    radii = np.array([o.radius for o in scene.objects])
+    total = static_s + moving_s + crossing_s
+    min_gap = _min_gap(at, radii, total)
+    records = _track_objects(config, seed, scene, at, calibrations, total)
     return {
         "frames": len(next(iter(records.values()))),
         "objects": [

@@ -115,6 +115,150 @@ def _segmentation(world: SimWorld, width: int, height: int) -> NDArray[np.int32]
     return seg[..., 0].copy()
 
 
+def _visible_fraction(
+    world: SimWorld, seg: NDArray[np.int32], spec: ObjectSpec, mask: NDArray[np.bool_]
+) -> float:
+    """Fraction of the bottle's true silhouette ``mask`` where the segmentation shows the
+    bottle itself (not another object or the arm in front)."""
+    geoms = [
+        mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, names.object_geom(spec.name, part))
+        for part in names.BOTTLE_PARTS
+    ]
+    return float(np.isin(seg[mask], [g for g in geoms if g >= 0]).mean())
+
+
+def _bottle_record(
+    scene_seed: int,
+    spec: ObjectSpec,
+    T_cam_obj: NDArray[np.float64],
+    visible: float,
+    box: tuple[float, float, float, float],
+    prof: Any,
+    hough: Any,
+    base: float,
+) -> dict[str, Any]:
+    """One measured bottle of ``per_bottle``: both methods' readings beside the truth, and
+    what each cue of the default method alone would have said (same body top)."""
+    body = prof.body_height_m
+    assert body is not None  # the profile method always reports the body top
+    span = body - base
+    cue_fill = {
+        cue: None if level is None else float(np.clip((level - base) / span, 0.0, 1.0))
+        for cue, level in (
+            ("colour", prof.level_colour_m),
+            ("depth", prof.level_depth_m),
+        )
+    }
+    return {
+        "scene": scene_seed,
+        "name": spec.name,
+        "liquid": spec.liquid,
+        "radius": spec.radius,
+        "height": spec.height,
+        "distance_m": float(np.linalg.norm(T_cam_obj[:3, 3])),
+        "visible": visible,
+        "box": list(box),
+        "fill_true": spec.fill,
+        "fill": prof.fill,
+        "fill_hough": hough.fill,
+        "error_pct": 100.0 * (prof.fill - spec.fill),
+        "error_pct_hough": 100.0 * (hough.fill - spec.fill),
+        "confidence": prof.confidence,
+        "level_m_true": spec.liquid_top,
+        "level_m": prof.level_m,
+        "body_height_m_true": spec.body_height,
+        "body_height_m": prof.body_height_m,
+        "fill_colour_cue": cue_fill["colour"],
+        "fill_depth_cue": cue_fill["depth"],
+        "level_colour_m": prof.level_colour_m,
+        "level_depth_m": prof.level_depth_m,
+    }
+
+
+class _Tally:
+    """What the scenes of an evaluation gave so far."""
+
+    def __init__(self) -> None:
+        self.profile_meter = LiquidLevelMeter("profile")
+        self.hough_meter = LiquidLevelMeter("hough")
+        self.per_bottle: list[dict[str, Any]] = []
+        self.skipped: list[dict[str, Any]] = []
+        self.ms_profile: list[float] = []
+        self.ms_hough: list[float] = []
+
+
+def _measure_scene(
+    config: Config, scene_seed: int, bottles_per_scene: int, min_visible: float, tally: _Tally
+) -> None:
+    """One frame of a liquid scene: each bottle measured by both methods, or skipped."""
+    scene = liquid_scene(config, scene_seed, bottles_per_scene)
+    with SimWorld(config, scene_seed, scene=scene) as world:
+        with SimCamera(world) as camera:
+            frame = camera.read()
+        intr = frame.intrinsics
+        seg = _segmentation(world, intr.width, intr.height)
+        T_cam_base = inv_T(world.T_base_cam())
+        for state in world.objects():
+            spec = state.spec
+            T_cam_obj = T_cam_base @ state.T_base_obj
+            box, mask = true_box_and_mask(intr, spec, T_cam_obj)
+            inside = (
+                box[0] >= 2
+                and box[1] >= 2
+                and box[2] <= intr.width - 2
+                and box[3] <= intr.height - 2
+            )
+            visible = _visible_fraction(world, seg, spec, mask)
+            if not inside or visible < min_visible:
+                tally.skipped.append({"scene": scene_seed, "name": spec.name, "visible": visible})
+                continue
+            t0 = time.perf_counter()
+            prof = tally.profile_meter.measure(frame, box)
+            t1 = time.perf_counter()
+            hough = tally.hough_meter.measure(frame, box)
+            t2 = time.perf_counter()
+            tally.ms_profile.append(1e3 * (t1 - t0))
+            tally.ms_hough.append(1e3 * (t2 - t1))
+            tally.per_bottle.append(
+                _bottle_record(
+                    scene_seed,
+                    spec,
+                    T_cam_obj,
+                    visible,
+                    box,
+                    prof,
+                    hough,
+                    tally.profile_meter.base,
+                )
+            )
+
+
+def _summary(tally: _Tally, scenes: int) -> dict[str, Any]:
+    per_bottle, ms_profile, ms_hough = tally.per_bottle, tally.ms_profile, tally.ms_hough
+    err = np.abs([b["error_pct"] for b in per_bottle])
+    err_h = np.abs([b["error_pct_hough"] for b in per_bottle])
+
+    def cue_mae(key: str) -> float:
+        errs = [abs(b[key] - b["fill_true"]) for b in per_bottle if b[key] is not None]
+        return 100.0 * float(np.mean(errs)) if errs else math.nan
+
+    return {
+        "mae_pct": float(err.mean()) if len(err) else math.nan,
+        "mae_pct_hough": float(err_h.mean()) if len(err_h) else math.nan,
+        "bottles": len(per_bottle),
+        "skipped": len(tally.skipped),
+        "scenes": scenes,
+        "p90_error_pct": float(np.percentile(err, 90)) if len(err) else math.nan,
+        "max_error_pct": float(err.max()) if len(err) else math.nan,
+        "p90_error_pct_hough": float(np.percentile(err_h, 90)) if len(err_h) else math.nan,
+        # Each cue of the default method alone (depth: over the bottles where it saw liquid).
+        "mae_pct_colour_cue": cue_mae("fill_colour_cue"),
+        "mae_pct_depth_cue": cue_mae("fill_depth_cue"),
+        "ms_per_bottle": float(np.median(ms_profile)) if ms_profile else math.nan,
+        "ms_per_bottle_hough": float(np.median(ms_hough)) if ms_hough else math.nan,
+    }
+
+
 def evaluate_liquid(
     config: Config,
     n: int,
@@ -133,110 +277,15 @@ def evaluate_liquid(
     """
     if n < 1:
         raise ValueError("n must be at least 1")
-    profile_meter = LiquidLevelMeter("profile")
-    hough_meter = LiquidLevelMeter("hough")
-    per_bottle: list[dict[str, Any]] = []
-    skipped: list[dict[str, Any]] = []
-    ms_profile: list[float] = []
-    ms_hough: list[float] = []
+    tally = _Tally()
     scenes = 0
     limit = max_scenes if max_scenes is not None else 10 * n
-    while len(per_bottle) < n and scenes < limit:
+    while len(tally.per_bottle) < n and scenes < limit:
         scene_seed = seed * 100_003 + scenes
         scenes += 1
-        scene = liquid_scene(config, scene_seed, bottles_per_scene)
-        with SimWorld(config, scene_seed, scene=scene) as world:
-            with SimCamera(world) as camera:
-                frame = camera.read()
-            intr = frame.intrinsics
-            seg = _segmentation(world, intr.width, intr.height)
-            T_cam_base = inv_T(world.T_base_cam())
-            for state in world.objects():
-                spec = state.spec
-                T_cam_obj = T_cam_base @ state.T_base_obj
-                box, mask = true_box_and_mask(intr, spec, T_cam_obj)
-                geoms = [
-                    mujoco.mj_name2id(
-                        world.model, mujoco.mjtObj.mjOBJ_GEOM, names.object_geom(spec.name, part)
-                    )
-                    for part in names.BOTTLE_PARTS
-                ]
-                inside = (
-                    box[0] >= 2
-                    and box[1] >= 2
-                    and box[2] <= intr.width - 2
-                    and box[3] <= intr.height - 2
-                )
-                visible = float(np.isin(seg[mask], [g for g in geoms if g >= 0]).mean())
-                if not inside or visible < min_visible:
-                    skipped.append({"scene": scene_seed, "name": spec.name, "visible": visible})
-                    continue
-                t0 = time.perf_counter()
-                prof = profile_meter.measure(frame, box)
-                t1 = time.perf_counter()
-                hough = hough_meter.measure(frame, box)
-                t2 = time.perf_counter()
-                ms_profile.append(1e3 * (t1 - t0))
-                ms_hough.append(1e3 * (t2 - t1))
-                # What each cue alone would have said, with the same body top.
-                body = prof.body_height_m
-                assert body is not None  # the profile method always reports the body top
-                span = body - profile_meter.base
-                cue_fill = {
-                    cue: None
-                    if level is None
-                    else float(np.clip((level - profile_meter.base) / span, 0.0, 1.0))
-                    for cue, level in (
-                        ("colour", prof.level_colour_m),
-                        ("depth", prof.level_depth_m),
-                    )
-                }
-                per_bottle.append(
-                    {
-                        "scene": scene_seed,
-                        "name": spec.name,
-                        "liquid": spec.liquid,
-                        "radius": spec.radius,
-                        "height": spec.height,
-                        "distance_m": float(np.linalg.norm(T_cam_obj[:3, 3])),
-                        "visible": visible,
-                        "box": list(box),
-                        "fill_true": spec.fill,
-                        "fill": prof.fill,
-                        "fill_hough": hough.fill,
-                        "error_pct": 100.0 * (prof.fill - spec.fill),
-                        "error_pct_hough": 100.0 * (hough.fill - spec.fill),
-                        "confidence": prof.confidence,
-                        "level_m_true": spec.liquid_top,
-                        "level_m": prof.level_m,
-                        "body_height_m_true": spec.body_height,
-                        "body_height_m": prof.body_height_m,
-                        "fill_colour_cue": cue_fill["colour"],
-                        "fill_depth_cue": cue_fill["depth"],
-                        "level_colour_m": prof.level_colour_m,
-                        "level_depth_m": prof.level_depth_m,
-                    }
-                )
-    err = np.abs([b["error_pct"] for b in per_bottle])
-    err_h = np.abs([b["error_pct_hough"] for b in per_bottle])
-
-    def cue_mae(key: str) -> float:
-        errs = [abs(b[key] - b["fill_true"]) for b in per_bottle if b[key] is not None]
-        return 100.0 * float(np.mean(errs)) if errs else math.nan
-
-    summary = {
-        "mae_pct": float(err.mean()) if len(err) else math.nan,
-        "mae_pct_hough": float(err_h.mean()) if len(err_h) else math.nan,
-        "bottles": len(per_bottle),
-        "skipped": len(skipped),
-        "scenes": scenes,
-        "p90_error_pct": float(np.percentile(err, 90)) if len(err) else math.nan,
-        "max_error_pct": float(err.max()) if len(err) else math.nan,
-        "p90_error_pct_hough": float(np.percentile(err_h, 90)) if len(err_h) else math.nan,
-        # Each cue of the default method alone (depth: over the bottles where it saw liquid).
-        "mae_pct_colour_cue": cue_mae("fill_colour_cue"),
-        "mae_pct_depth_cue": cue_mae("fill_depth_cue"),
-        "ms_per_bottle": float(np.median(ms_profile)) if ms_profile else math.nan,
-        "ms_per_bottle_hough": float(np.median(ms_hough)) if ms_hough else math.nan,
+        _measure_scene(config, scene_seed, bottles_per_scene, min_visible, tally)
+    return {
+        "summary": _summary(tally, scenes),
+        "per_bottle": tally.per_bottle,
+        "skipped": tally.skipped,
     }
-    return {"summary": summary, "per_bottle": per_bottle, "skipped": skipped}

@@ -127,6 +127,114 @@ def match_detections(
     return [(int(i), int(j), float(cost[i, j])) for i, j in zip(rows, cols) if cost[i, j] < gate_m]
 
 
+def _render(config: Config, seed: int, arm_pose: str) -> tuple[Any, Array, Any, Array]:
+    """One scene's frame, its exact depth render, the ground truth and the encoder readings."""
+    from armvision.sim.arm import SimArm
+    from armvision.sim.camera import SimCamera
+    from armvision.sim.world import SimWorld
+
+    with SimWorld(config, seed) as world, SimCamera(world) as camera:
+        arm = SimArm(world)
+        # The world starts with the arm asleep, as the real arm powers up.
+        if arm_pose == "home" and not arm.go_to_home_pose():
+            raise RuntimeError(f"seed {seed}: the arm could not reach home: {arm.last_error}")
+        world.advance(0.1)  # let the objects settle on the table
+        frame = camera.read()
+        true_depth = camera.render_true_depth()
+        truth = world.ground_truth()
+        q_encoders = arm.get_joint_positions()
+    return frame, true_depth, truth, q_encoders
+
+
+def _true_objects(
+    frame: Any, true_depth: Array, truth: Any, min_visible_fraction: float
+) -> list[_ObjectRecord]:
+    """The scene's true objects: centre in the camera frame and how visible each is."""
+    T_cam_base = inv_T(truth.T_base_cam)
+    objects: list[_ObjectRecord] = []
+    for state in truth.objects:
+        spec = state.spec
+        T_cam_obj = T_cam_base @ state.T_base_obj
+        points, normals = surface_samples_obj(spec.kind, spec.radius, spec.height, spec.body_height)
+        fraction = visible_fraction(frame.intrinsics, T_cam_obj, points, normals, true_depth)
+        objects.append(
+            {
+                "name": spec.name,
+                "kind": spec.kind,
+                "radius": spec.radius,
+                "height": spec.height,
+                "center_cam": transform_points(T_cam_obj, [0.0, 0.0, spec.height / 2.0]),
+                "visible_fraction": fraction,
+                "visible": fraction >= min_visible_fraction,
+            }
+        )
+    return objects
+
+
+@dataclasses.dataclass
+class _Counts:
+    """The tallies over the scenes."""
+
+    errors_mm: list[float] = dataclasses.field(default_factory=list)
+    visible: int = 0
+    hits: int = 0
+    false_positives: int = 0
+    label_ok: int = 0
+    matched: int = 0
+    objects: int = 0
+
+
+def _score_scene(
+    objects: list[_ObjectRecord], detections: list[Detection], gate_m: float, counts: _Counts
+) -> list[int]:
+    """Match the detections to the objects (filling in each object's match) and count; the
+    indices of the false positives."""
+    centers_true = np.array([o["center_cam"] for o in objects]).reshape(-1, 3)
+    centers_det = np.array([d.center_cam for d in detections]).reshape(-1, 3)
+    matches = match_detections(centers_true, centers_det, gate_m)
+    matched_det = {j for _, j, _ in matches}
+    matched_obj = {i: (j, dist) for i, j, dist in matches}
+    scene_fp = [j for j in range(len(detections)) if j not in matched_det]
+    for i, obj in enumerate(objects):
+        match = matched_obj.get(i)
+        obj["detection"] = None if match is None else match[0]
+        obj["center_error_mm"] = None if match is None else 1e3 * match[1]
+        obj["label"] = None if match is None else detections[match[0]].label
+        if obj["visible"]:
+            counts.visible += 1
+            if match is not None:
+                counts.hits += 1
+        if match is not None:
+            j, dist = match
+            counts.matched += 1
+            counts.errors_mm.append(1e3 * dist)
+            counts.label_ok += int(detections[j].label == obj["kind"])
+    counts.false_positives += len(scene_fp)
+    counts.objects += len(objects)
+    return scene_fp
+
+
+def _summary(counts: _Counts, scenes: int) -> dict[str, Any]:
+    errors_mm = counts.errors_mm
+    return {
+        "object_recall": counts.hits / counts.visible if counts.visible else float("nan"),
+        "object_false_positives": counts.false_positives,
+        "object_label_accuracy": (
+            counts.label_ok / counts.matched if counts.matched else float("nan")
+        ),
+        "object_center_error_mm_median": (
+            float(np.median(errors_mm)) if errors_mm else float("nan")
+        ),
+        "object_center_error_mm_p90": (
+            float(np.percentile(errors_mm, 90)) if errors_mm else float("nan")
+        ),
+        "scenes": scenes,
+        "objects": counts.objects,
+        "objects_visible": counts.visible,
+        "objects_matched": counts.matched,
+    }
+
+
 def evaluate_objects(
     config: Config,
     seeds: list[int],
@@ -142,73 +250,18 @@ def evaluate_objects(
     Returns {"summary": {object_recall, object_false_positives, object_label_accuracy,
     object_center_error_mm_median, scenes, objects, ...}, "per_scene": [...]}.
     """
-    from armvision.sim.arm import SimArm
-    from armvision.sim.camera import SimCamera
-    from armvision.sim.world import SimWorld
-
     config = dataclasses.replace(
         config, sim=dataclasses.replace(config.sim, randomize_camera=randomize_camera)
     )
     per_scene: list[dict[str, Any]] = []
-    errors_mm: list[float] = []
-    n_visible = n_hits = n_fp = n_label_ok = n_matched = n_objects = 0
+    counts = _Counts()
     for seed in seeds:
-        with SimWorld(config, seed) as world, SimCamera(world) as camera:
-            arm = SimArm(world)
-            # The world starts with the arm asleep, as the real arm powers up.
-            if arm_pose == "home" and not arm.go_to_home_pose():
-                raise RuntimeError(f"seed {seed}: the arm could not reach home: {arm.last_error}")
-            world.advance(0.1)  # let the objects settle on the table
-            frame = camera.read()
-            true_depth = camera.render_true_depth()
-            truth = world.ground_truth()
-            q_encoders = arm.get_joint_positions()
+        frame, true_depth, truth, q_encoders = _render(config, seed, arm_pose)
         detector = GeometricDetector(seed=seed, **(detector_kwargs or {}))
         context = FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q_encoders)
         detections: list[Detection] = detector.detect(frame, context)
-
-        T_cam_base = inv_T(truth.T_base_cam)
-        objects: list[_ObjectRecord] = []
-        for state in truth.objects:
-            spec = state.spec
-            T_cam_obj = T_cam_base @ state.T_base_obj
-            points, normals = surface_samples_obj(
-                spec.kind, spec.radius, spec.height, spec.body_height
-            )
-            fraction = visible_fraction(frame.intrinsics, T_cam_obj, points, normals, true_depth)
-            objects.append(
-                {
-                    "name": spec.name,
-                    "kind": spec.kind,
-                    "radius": spec.radius,
-                    "height": spec.height,
-                    "center_cam": transform_points(T_cam_obj, [0.0, 0.0, spec.height / 2.0]),
-                    "visible_fraction": fraction,
-                    "visible": fraction >= min_visible_fraction,
-                }
-            )
-        centers_true = np.array([o["center_cam"] for o in objects]).reshape(-1, 3)
-        centers_det = np.array([d.center_cam for d in detections]).reshape(-1, 3)
-        matches = match_detections(centers_true, centers_det, match_gate_m)
-        matched_det = {j for _, j, _ in matches}
-        matched_obj = {i: (j, dist) for i, j, dist in matches}
-        scene_fp = [j for j in range(len(detections)) if j not in matched_det]
-        for i, obj in enumerate(objects):
-            match = matched_obj.get(i)
-            obj["detection"] = None if match is None else match[0]
-            obj["center_error_mm"] = None if match is None else 1e3 * match[1]
-            obj["label"] = None if match is None else detections[match[0]].label
-            if obj["visible"]:
-                n_visible += 1
-                if match is not None:
-                    n_hits += 1
-            if match is not None:
-                j, dist = match
-                n_matched += 1
-                errors_mm.append(1e3 * dist)
-                n_label_ok += int(detections[j].label == obj["kind"])
-        n_fp += len(scene_fp)
-        n_objects += len(objects)
+        objects = _true_objects(frame, true_depth, truth, min_visible_fraction)
+        scene_fp = _score_scene(objects, detections, match_gate_m, counts)
         per_scene.append(
             {
                 "seed": int(seed),
@@ -219,21 +272,4 @@ def evaluate_objects(
                 "false_positives": scene_fp,
             }
         )
-    return {
-        "summary": {
-            "object_recall": n_hits / n_visible if n_visible else float("nan"),
-            "object_false_positives": n_fp,
-            "object_label_accuracy": n_label_ok / n_matched if n_matched else float("nan"),
-            "object_center_error_mm_median": (
-                float(np.median(errors_mm)) if errors_mm else float("nan")
-            ),
-            "object_center_error_mm_p90": (
-                float(np.percentile(errors_mm, 90)) if errors_mm else float("nan")
-            ),
-            "scenes": len(seeds),
-            "objects": n_objects,
-            "objects_visible": n_visible,
-            "objects_matched": n_matched,
-        },
-        "per_scene": per_scene,
-    }
+    return {"summary": _summary(counts, len(seeds)), "per_scene": per_scene}

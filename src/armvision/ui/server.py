@@ -811,7 +811,17 @@ class OperatorUI:
 
     def _build(self) -> FastAPI:
         app = FastAPI(title="armvision", docs_url=None, redoc_url=None, openapi_url=None)
-        ui = self
+        self._add_error_handlers(app)
+        self._add_page_routes(app)
+        self._add_state_routes(app)
+        self._add_video_routes(app)
+        self._add_control_routes(app)
+        app.add_middleware(Guard, ui=self)
+        return app
+
+    def _add_error_handlers(self, app: FastAPI) -> None:
+        """The exception handlers: an error as ``{"error": one line}`` with its status (a client
+        that left before its body was in: a bare 400)."""
 
         def error(message: str, status: int) -> JSONResponse:
             return JSONResponse({"error": _one_line(message)}, status_code=status)
@@ -853,6 +863,10 @@ class OperatorUI:
                 400,
             )
 
+    def _add_page_routes(self, app: FastAPI) -> None:
+        """The page (setting the token cookie) and its static files."""
+        ui = self
+
         @app.get("/")
         async def index(request: Request) -> Response:
             response = FileResponse(
@@ -863,6 +877,10 @@ class OperatorUI:
             return response
 
         app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    def _add_state_routes(self, app: FastAPI) -> None:
+        """The state: on request, and pushed over a WebSocket at ``ui.state_hz``."""
+        ui = self
 
         @app.get("/api/state")
         async def get_state() -> Response:
@@ -882,6 +900,10 @@ class OperatorUI:
                 await ws.close(1001)  # going away: the server shuts down
             except (WebSocketDisconnect, RuntimeError):
                 return  # the page went away
+
+    def _add_video_routes(self, app: FastAPI) -> None:
+        """The newest camera frame as a JPEG, and the MJPEG stream."""
+        ui = self
 
         def _view(view: str) -> str:
             if view not in ("color", "depth"):
@@ -920,6 +942,10 @@ class OperatorUI:
                 headers={"Cache-Control": "no-store"},
             )
 
+    def _add_control_routes(self, app: FastAPI) -> None:
+        """Starting an action, the stop, and switching detectors."""
+        ui = self
+
         @app.post("/api/actions/{name}", status_code=202)
         async def action(name: str, request: Request) -> dict[str, Any]:
             if name not in ACTIONS:  # before the body: the name is the mistake
@@ -946,9 +972,6 @@ class OperatorUI:
             ui.system.set_detector(name, body.enabled)
             ui.changed()
             return {"detectors": dict(ui.system.enabled)}
-
-        app.add_middleware(Guard, ui=self)
-        return app
 
 
 # --------------------------------------------------------------------------- serving
