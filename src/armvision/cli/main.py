@@ -7,6 +7,7 @@ import logging
 import sys
 import typing
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from armvision import __version__
 from armvision.cli.args import MAX_SEED, int_in, millimetres, out_dir, seed, seeds
@@ -60,6 +61,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
+    _add_info_parsers(sub)
+    _add_perception_parsers(sub)
+    _add_calibrate_parser(sub)
+    evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")
+    eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
+    _add_eval_parsers(eval_sub)
+    add_parsers(sub, eval_sub)
+    return parser
+
+
+def _add_info_parsers(sub: Any) -> None:
+    """``armvision info`` and ``armvision config``."""
     info = sub.add_parser("info", help="version and which backends work on this machine")
     info.add_argument("--json", action="store_true", help="machine-readable output")
     info.set_defaults(func=cmd_info)
@@ -67,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     show = sub.add_parser("config", help="print the effective configuration as TOML")
     show.set_defaults(func=cmd_config)
 
+
+def _add_perception_parsers(sub: Any) -> None:
+    """``armvision sim snapshot`` and ``armvision perceive``."""
     sim = sub.add_parser("sim", help="the simulated workspace (MuJoCo)")
     sim_sub = sim.add_subparsers(dest="sim_command", metavar="SIM_COMMAND", required=True)
     snapshot = sim_sub.add_parser(
@@ -91,6 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     perceive.set_defaults(func=cmd_perceive)
 
+
+def _add_calibrate_parser(sub: Any) -> None:
+    """``armvision calibrate``."""
     calibrate = sub.add_parser(
         "calibrate", help="find the camera's pose in the robot base frame with the gripper tag"
     )
@@ -114,8 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calibrate.set_defaults(func=cmd_calibrate)
 
-    evaluate = sub.add_parser("eval", help="measure a capability against the simulator's truth")
-    eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
+
+def _add_eval_parsers(eval_sub: Any) -> None:
+    """``armvision eval perception|liquid|fusion|calibration``."""
     perception = eval_sub.add_parser("perception", help="tag poses and object detection")
     perception.add_argument(
         "--seeds", type=seeds, default="0-19", help="scene seeds: 7, 0-19 or 1,4,9"
@@ -153,8 +173,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calib.add_argument("--json", action="store_true", help="one JSON object on stdout")
     calib.set_defaults(func=cmd_eval_calibration)
-    add_parsers(sub, eval_sub)
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
