@@ -240,3 +240,56 @@ def test_a_camera_that_knows_its_intrinsics_only_once_started() -> None:
     system = System(Config(), SimArm(world), Unstarted(), sim_truth_calibration(world.T_base_cam()))
     assert system.fusion.focal_px == DEFAULT_FOCAL_PX
     system.close()
+
+
+def test_one_camera_pose_the_refined_one_is_in_the_state_and_given_to_the_detector() -> None:
+    """A calibration 4 mm / 0.3 deg off, the gripper tag shown at several places: fusion
+    refines the camera pose; the state's pose is that refined one (nearer the truth than the
+    calibration, which stays unchanged as the prior) and the object detector is given it."""
+    from armvision.calibration.sampling import facing_pose
+    from armvision.eval.fusion import perturbed_calibration
+    from armvision.geometry import pose_error
+    from armvision.perception.detection import NO_CONTEXT, FrameContext
+    from armvision.perception.geometric import GeometricDetector
+    from armvision.runtime.state import CalibrationStatus
+
+    config = Config()
+    scene = _scene()
+    T_true = scene.T_base_cam
+    T_off, _ = perturbed_calibration(T_true, seed=1, translation=0.004, rotation_deg=0.3)
+    given: list[np.ndarray] = []
+
+    class Recording(GeometricDetector):
+        def detect(self, frame, context: FrameContext = NO_CONTEXT):
+            given.append(np.array(context.T_base_cam))
+            return super().detect(frame, context)
+
+    calibration = CalibrationStatus("4 mm off", "none", None, T_off)
+    with sim_system(config, 4, scene=scene, calibration=calibration, object_detector=Recording()):
+        pass  # built and closed: the constructor alone must not change the prior
+    system = sim_system(
+        config, 4, scene=scene, calibration=calibration, object_detector=Recording()
+    )
+    with system:
+        offset = np.array(config.tag.offset_ee)
+        for p in ([0.32, 0.05, 0.25], [0.38, -0.10, 0.32], [0.28, 0.12, 0.20], [0.35, 0.0, 0.38]):
+            T = facing_pose(np.array(p), T_true[:3, 3], offset)
+
+            def show(ctx, T=T):
+                if not ctx.move_pose(T, moving_time=2.0):
+                    raise TaskError(f"the arm refused: {ctx.arm.last_error}")
+
+            status = system.run_task("show", show)
+            assert status.phase == "succeeded", status.error
+            system.pump(system.clock() + 2.0)
+        state = system.snapshot()
+    assert np.array_equal(state.calibration.T_base_cam, T_off)  # the prior is kept as given
+    assert np.array_equal(state.T_base_cam, state.fusion.T_base_cam)
+    assert np.array_equal(system.T_base_cam, state.T_base_cam)
+    refined_mm = 1000.0 * float(pose_error(state.T_base_cam, T_true)[0])
+    prior_mm = 1000.0 * float(pose_error(T_off, T_true)[0])
+    assert refined_mm < prior_mm - 0.2, (refined_mm, prior_mm)
+    # The detector was told the pose fusion held at each frame, not the calibration's.
+    assert len(given) > 10
+    assert float(pose_error(given[-1], T_off)[0]) > 1e-4
+    assert float(pose_error(given[-1], state.T_base_cam)[0]) < 1e-3
