@@ -19,6 +19,12 @@ from armvision.ui.server import TOKEN_ENV, listen
 ARMVISION = [sys.executable, "-m", "armvision.cli"]
 
 
+def _sigint_default() -> None:
+    """In the child: Ctrl-C as in a terminal, even when this test runs as a background job
+    (a shell without job control starts those with SIGINT ignored, which Python keeps)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k not in ("ARMVISION_CONFIG", TOKEN_ENV)}
 
@@ -31,6 +37,7 @@ def test_off_the_loopback_it_prints_a_token_address_and_refuses_requests_without
         text=True,
         cwd=tmp_path,
         env=_env(),
+        preexec_fn=_sigint_default,
     )
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=lambda: [lines.put(x) for x in proc.stderr], daemon=True).start()
