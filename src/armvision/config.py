@@ -253,8 +253,13 @@ class SimConfig:
     ``camera_pitch_deg``. With ``randomize_camera`` every seed adds a uniform offset within
     the ``*_jitter`` ranges (plus, minus); the jittered distance stays beyond 0.3 m and the
     jittered height above the table top.
+
+    ``profile`` picks the scenes: ``"default"`` (1-4 bottles and cups, well apart) or
+    ``"cluttered"`` (more objects close together, partly hidden, with distractors that are
+    neither bottle nor cup, and more bottle and cup families), the harder bench.
     """
 
+    profile: Literal["default", "cluttered"] = "default"
     camera_distance: Annotated[Float, Field(gt=0.3, le=3.0)] = 1.0
     camera_azimuth_deg: Annotated[Float, Field(ge=-180.0, le=180.0)] = 0.0
     camera_height: Annotated[Float, Field(ge=0.0, le=2.0)] = 0.45
@@ -275,7 +280,7 @@ class SimConfig:
     encoder_noise_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.1  # per reading, 1 sigma
     encoder_bias_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.3  # per joint and seed
     timestep: Annotated[Float, Field(gt=0.0, le=0.01)] = 0.002  # physics step, seconds
-    # Random light direction, brightness and ambient per seed (see sim.world.random_lighting);
+    # Random light direction, brightness and ambient per seed (see sim.scene.random_lighting);
     # off by default so the default scenes keep their fixed lighting.
     randomize_lighting: Bool = False
 
