@@ -82,3 +82,17 @@ def test_usage_errors_are_one_line_in_a_real_process(tmp_path):
     assert port.returncode == 2 and "argument --port" in port.stderr
     for failed in (result, port):
         assert len(failed.stderr.splitlines()) == 1 and "Traceback" not in failed.stderr
+
+
+def test_profile_selects_the_simulated_scenes_of_every_evaluation() -> None:
+    from armvision.cli.main import PROFILED_EVALS, build_parser, overrides
+    from armvision.config import load_config
+
+    parser = build_parser()
+    for name in PROFILED_EVALS:
+        args = parser.parse_args(
+            ["--set", "sim.profile=default", "eval", name, "--profile", "cluttered"]
+        )
+        assert load_config(None, overrides(args)).sim.profile == "cluttered"
+        args = parser.parse_args(["eval", name])
+        assert load_config(None, overrides(args)).sim.profile == "default"

@@ -68,7 +68,31 @@ def build_parser() -> argparse.ArgumentParser:
     eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     _add_eval_parsers(eval_sub)
     add_parsers(sub, eval_sub)
+    _add_profile_options(eval_sub)
     return parser
+
+
+#: The evaluations that run on simulated scenes, and so take ``--profile``.
+PROFILED_EVALS = ("perception", "liquid", "grab", "follow", "fusion")
+
+
+def overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` overrides, with ``--profile`` as ``sim.profile`` (given last, it wins)."""
+    out = list(args.overrides)
+    if getattr(args, "profile", None) is not None:
+        out.append(f"sim.profile={args.profile}")
+    return out
+
+
+def _add_profile_options(eval_sub: Any) -> None:
+    """``--profile`` on every evaluation that builds simulated scenes (``sim.profile``)."""
+    for name in PROFILED_EVALS:
+        eval_sub.choices[name].add_argument(
+            "--profile",
+            choices=("default", "cluttered"),
+            help="the simulated scenes: default, or cluttered with distractors "
+            "(the same as --set sim.profile=...)",
+        )
 
 
 def _add_info_parsers(sub: Any) -> None:
@@ -199,7 +223,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        config = load_config(args.config, args.overrides)
+        config = load_config(args.config, overrides(args))
         return func(args, config)
     except ArmvisionError as exc:
         if args.debug:
