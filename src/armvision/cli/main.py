@@ -17,7 +17,6 @@ from armvision.cli.evaluate import (
     cmd_eval_fusion,
     cmd_eval_liquid,
     cmd_eval_perception,
-    cmd_eval_real,
 )
 from armvision.cli.info import cmd_config, cmd_info
 from armvision.cli.perceive import cmd_perceive, cmd_sim_snapshot
@@ -126,10 +125,45 @@ def _add_perception_parsers(sub: Any) -> None:
     source = perceive.add_mutually_exclusive_group()
     source.add_argument("--sim", action="store_true", help="a simulated scene (default)")
     source.add_argument("--real", action="store_true", help="the RealSense camera")
+    source.add_argument(
+        "--color", metavar="IMG", help="a saved colour image (PNG, JPG), with --depth"
+    )
+    perceive.add_argument(
+        "--depth",
+        metavar="IMG",
+        help="its depth, aligned to the colour: 16-bit PNG or .npy (x --depth-scale), "
+        "float EXR or .npy (metres)",
+    )
+    perceive.add_argument(
+        "--depth-scale",
+        type=float,
+        default=0.001,
+        metavar="S",
+        help="metres per unit of integer depth (default 0.001: millimetres)",
+    )
+    perceive.add_argument(
+        "--intrinsics",
+        metavar="FX,FY,CX,CY",
+        help="pixels at the image's size, or a JSON file holding them (a snapshot's "
+        "ground_truth.json); default: those in --calibration",
+    )
+    perceive.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="a calibration from `armvision calibrate`: the camera pose for the table prior "
+        "(--color, --real)",
+    )
+    perceive.add_argument(
+        "--joints",
+        metavar="Q1,...,Q6",
+        help="with --color and --calibration: the six joint readings (rad) at capture, for the "
+        "arm's self-mask, or a JSON file with joint_positions (a snapshot's ground_truth.json)",
+    )
     perceive.add_argument("--seed", type=seed, default=0, help="scene seed (simulation)")
     perceive.add_argument(
         "--out", type=out_dir, default="perceive", metavar="DIR", help="output directory"
     )
+    perceive.add_argument("--json", action="store_true", help="one JSON object on stdout")
     perceive.set_defaults(func=cmd_perceive)
 
 
@@ -160,7 +194,7 @@ def _add_calibrate_parser(sub: Any) -> None:
 
 
 def _add_eval_parsers(eval_sub: Any) -> None:
-    """``armvision eval perception|liquid|fusion|calibration|real``."""
+    """``armvision eval perception|liquid|fusion|calibration``."""
     perception = eval_sub.add_parser("perception", help="tag poses and object detection")
     perception.add_argument(
         "--seeds", type=seeds, default="0-19", help="scene seeds: 7, 0-19 or 1,4,9"
@@ -198,16 +232,6 @@ def _add_eval_parsers(eval_sub: Any) -> None:
     )
     calib.add_argument("--json", action="store_true", help="one JSON object on stdout")
     calib.set_defaults(func=cmd_eval_calibration)
-    real = eval_sub.add_parser(
-        "real", help="perception and calibration on public real RealSense data (not simulation)"
-    )
-    real.add_argument(
-        "--data",
-        metavar="DIR",
-        help="the real-data folder (default: $ARMVISION_REALDATA, else ../shared/realdata)",
-    )
-    real.add_argument("--json", action="store_true", help="one JSON object on stdout")
-    real.set_defaults(func=cmd_eval_real)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -33,7 +33,14 @@ def cmd_sim_snapshot(args: argparse.Namespace, config: Config) -> int:
 
 
 def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None) -> dict:
-    """Tags, containers and liquid levels in one frame, and the annotated image."""
+    """Tags, containers and liquid levels in one frame, and the annotated image.
+
+    Every tag record has the same keys, and so has every detection record (``fill``,
+    ``fill_confidence`` and ``liquid_colour`` are None for a cup or an unmeasured bottle);
+    the keys are documented in the README ("Perception on a saved frame").
+    """
+    import numpy as np
+
     from armvision.perception.annotate import annotate
     from armvision.perception.detection import FrameContext
     from armvision.perception.geometric import GeometricDetector
@@ -53,19 +60,23 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
     records = []
     for det, level in zip(detections, levels):
         record = det.to_dict()
-        if level is not None:
-            record["fill"] = level.fill
-            record["fill_confidence"] = level.confidence
-            record["liquid_colour"] = None if level.colour is None else list(level.colour)
+        record["fill"] = None if level is None else float(level.fill)
+        record["fill_confidence"] = None if level is None else float(level.confidence)
+        record["liquid_colour"] = (
+            None if level is None or level.colour is None else [int(c) for c in level.colour]
+        )
         records.append(record)
     return {
         "tags": [
             {
-                "id": t.id,
+                "id": int(t.id),
+                "center": [float(v) for v in t.center],
+                "corners": np.asarray(t.corners, dtype=float).tolist(),
                 "T_cam_tag": t.T_cam_tag.tolist(),
-                "decision_margin": t.decision_margin,
-                "pose_error_px": t.pose_error,
-                "depth_refined": t.depth_refined,
+                "distance_m": float(np.linalg.norm(t.T_cam_tag[:3, 3])),
+                "decision_margin": float(t.decision_margin),
+                "pose_error_px": float(t.pose_error),
+                "depth_refined": bool(t.depth_refined),
             }
             for t in tags
         ],
@@ -74,16 +85,141 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
     }
 
 
+def _frame_source(frame, kind: str, **more) -> dict:
+    """The ``source`` record: where the frame came from, its size and intrinsics."""
+    h, w = frame.depth.shape
+    return {
+        "kind": kind,
+        **more,
+        "size": [int(w), int(h)],
+        "intrinsics": frame.intrinsics.to_dict(),
+    }
+
+
+def _calibration_pose(path: str | None):
+    """T_base_cam of a calibration file, its intrinsics and its joint offsets (None if it has
+    none)."""
+    if path is None:
+        return None, None, None
+    import numpy as np
+
+    from armvision.calibration.store import load
+    from armvision.camera.frames import Intrinsics
+    from armvision.runtime.build import load_calibration
+
+    status = load_calibration(path)  # the runtime's checks and messages
+    stored = load(path)
+    intr = stored.camera.get("intrinsics")
+    intrinsics = None if intr is None else Intrinsics(**{**intr, "coeffs": tuple(intr["coeffs"])})
+    return np.asarray(status.T_base_cam, dtype=float), intrinsics, status.joint_offsets_rad
+
+
+def _joints(text: str, offsets) -> list[float]:
+    """Six joint angles (rad) from "q1,...,q6" or a JSON file's ``joint_positions``, less the
+    calibration's joint offsets (as the runtime corrects its encoders)."""
+    import math
+    from pathlib import Path
+
+    import numpy as np
+
+    from armvision.camera.files import FrameFileError
+
+    help_ = "give --joints as six angles in radians, q1,...,q6, or a JSON file with joint_positions"
+    values: object = None
+    if "," in text:
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = None
+    else:
+        path = Path(text)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise FrameFileError(f"--joints file {path} does not exist: {help_}") from None
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise FrameFileError(f"--joints file {path} is unreadable ({exc}): {help_}") from None
+        values = data.get("joint_positions") if isinstance(data, dict) else None
+    ok = (
+        isinstance(values, list)
+        and len(values) == 6
+        and all(isinstance(v, int | float) and math.isfinite(v) for v in values)
+    )
+    if not ok:
+        raise FrameFileError(f"--joints {text!r} is not six finite numbers: {help_}")
+    q = np.asarray(values, dtype=float)
+    if offsets is not None:
+        q = q - np.asarray(offsets, dtype=float)
+    return [float(v) for v in q]
+
+
+def _file_frame(args: argparse.Namespace):
+    """The frame of --color/--depth, the camera pose of --calibration, and the source record."""
+    from armvision.camera.files import FrameFileError, check_depth_scale, load_rgbd_with_unit
+
+    if args.depth is None:
+        raise FrameFileError(
+            "--color needs --depth: give the depth image aligned to it (16-bit PNG, EXR or .npy)"
+        )
+    check_depth_scale(args.depth_scale)
+    T_base_cam, calib_intrinsics, offsets = _calibration_pose(args.calibration)
+    joints = None
+    if args.joints is not None:
+        if T_base_cam is None:
+            raise FrameFileError(
+                "--joints needs --calibration: the arm is masked out in the base frame, so the "
+                "camera's pose is needed"
+            )
+        joints = _joints(args.joints, offsets)
+    intrinsics = args.intrinsics
+    if intrinsics is None:
+        if calib_intrinsics is None:
+            raise FrameFileError(
+                "--color needs --intrinsics fx,fy,cx,cy (pixels, at the image's size), or a "
+                "--calibration file that holds the camera's intrinsics"
+            )
+        intrinsics = calib_intrinsics
+    frame, scale = load_rgbd_with_unit(args.color, args.depth, args.depth_scale, intrinsics)
+    source = _frame_source(
+        frame,
+        "files",
+        color=str(args.color),
+        depth=str(args.depth),
+        depth_scale=scale,
+        calibration=None if args.calibration is None else str(args.calibration),
+        joint_positions=joints,
+    )
+    return frame, T_base_cam, joints, source
+
+
 def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
     from armvision.bench.snapshot import _write_png
+    from armvision.errors import ArmvisionError
 
+    color = getattr(args, "color", None)
+    if color is None and getattr(args, "depth", None) is not None:
+        raise ArmvisionError("--depth goes with --color: give the colour image too")
+    for given in ("intrinsics", "joints"):
+        if color is None and getattr(args, given, None) is not None:
+            raise ArmvisionError(f"--{given} goes with --color (a saved frame)")
+    calibration = getattr(args, "calibration", None)
+    if calibration is not None and color is None and not args.real:
+        raise ArmvisionError(
+            "--calibration goes with --color or --real; in simulation the simulator's camera "
+            "pose is used"
+        )
     out = writable_dir(args.out)  # before the camera or the scene starts
-    if args.real:
+    if color is not None:
+        frame, T_base_cam, joints, source = _file_frame(args)
+        result = {"source": source, **_perceive_frame(config, frame, T_base_cam, joints)}
+    elif args.real:
         from armvision.camera.realsense import RealSenseCamera
 
+        T_base_cam, _, _ = _calibration_pose(calibration)
         with RealSenseCamera.from_config(config.camera) as camera:
             frame = camera.read(timeout_s=5.0)
-        result = _perceive_frame(config, frame)
+        source = _frame_source(frame, "real", calibration=calibration)
+        result = {"source": source, **_perceive_frame(config, frame, T_base_cam)}
     else:
         from armvision.geometry import inv_T
         from armvision.sim.arm import SimArm
@@ -96,7 +232,11 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
             world.advance(0.3)
             frame = camera.read()
             # No calibration yet: the self-filter uses the simulator's camera pose.
-            result = _perceive_frame(config, frame, world.T_base_cam(), arm.get_joint_positions())
+            source = _frame_source(frame, "sim", seed=int(args.seed))
+            result = {
+                "source": source,
+                **_perceive_frame(config, frame, world.T_base_cam(), arm.get_joint_positions()),
+            }
             T_cam_base = inv_T(world.T_base_cam())
             result["ground_truth"] = {
                 "T_cam_tag": (T_cam_base @ world.T_base_tag()).tolist(),
@@ -116,12 +256,41 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
             }
     image = result.pop("image")
     _write_png(out / "annotated.png", image)
+    result["image"] = str(out / "annotated.png")
     with open(out / "detections.json", "w") as fh:
         json.dump(result, fh, indent=2)
-    print(f"{len(result['tags'])} tag(s), {len(result['detections'])} container(s):")
-    for det in result["detections"]:
-        x, y, z = det["center_cam"]
-        fill = f"  fill {100 * det['fill']:.0f} %" if "fill" in det else ""
-        print(f"  {det['label']:<6} at x={x:+.3f} y={y:+.3f} z={z:.3f} m (camera){fill}")
+    if getattr(args, "json", False):
+        print(json.dumps(result))
+        return 0
+    _print_result(result)
     print(f"wrote {out / 'annotated.png'} and {out / 'detections.json'}")
     return 0
+
+
+def _print_result(result: dict) -> None:
+    source = result["source"]
+    if source["kind"] == "files":
+        w, h = source["size"]
+        k = source["intrinsics"]
+        scale = source["depth_scale"]
+        unit = "float metres" if scale is None else f"x {scale:g} m"
+        print(
+            f"{source['color']} + {source['depth']} ({unit}): {w}x{h}, fx={k['fx']:.1f} "
+            f"fy={k['fy']:.1f} cx={k['ppx']:.1f} cy={k['ppy']:.1f}; camera pose: "
+            f"{source['calibration'] or 'none (no table prior)'}"
+        )
+    print(f"{len(result['tags'])} tag(s), {len(result['detections'])} container(s):")
+    for tag in result["tags"]:
+        x, y, z = (row[3] for row in tag["T_cam_tag"][:3])
+        print(
+            f"  tag {tag['id']:<3} at x={x:+.3f} y={y:+.3f} z={z:.3f} m (camera), "
+            f"{tag['distance_m']:.3f} m away"
+        )
+    for det in result["detections"]:
+        x, y, z = det["center_cam"]
+        fill = "" if det["fill"] is None else f"  fill {100 * det['fill']:.0f} %"
+        print(
+            f"  {det['label']:<6} at x={x:+.3f} y={y:+.3f} z={z:.3f} m (camera), score "
+            f"{det['score']:.2f}, {1000 * 2 * det['radius']:.0f} mm wide "
+            f"{1000 * det['height']:.0f} mm tall{fill}"
+        )
