@@ -119,3 +119,14 @@ def cmd_eval_follow(args: argparse.Namespace, config: Config) -> int:
         return 0
     _print_summary(f"follow a tag on a circle, seed {args.seed}", result["summary"])
     return 0
+
+
+def cmd_eval_real(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval.real import data_dir, evaluate_real, format_real
+
+    result = evaluate_real(data_dir(args.data), config)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print("\n".join(format_real(result)))
+    return 0

@@ -17,6 +17,7 @@ from armvision.cli.evaluate import (
     cmd_eval_fusion,
     cmd_eval_liquid,
     cmd_eval_perception,
+    cmd_eval_real,
 )
 from armvision.cli.info import cmd_config, cmd_info
 from armvision.cli.perceive import cmd_perceive, cmd_sim_snapshot
@@ -194,7 +195,7 @@ def _add_calibrate_parser(sub: Any) -> None:
 
 
 def _add_eval_parsers(eval_sub: Any) -> None:
-    """``armvision eval perception|liquid|fusion|calibration``."""
+    """``armvision eval perception|liquid|fusion|calibration|real``."""
     perception = eval_sub.add_parser("perception", help="tag poses and object detection")
     perception.add_argument(
         "--seeds", type=seeds, default="0-19", help="scene seeds: 7, 0-19 or 1,4,9"
@@ -232,6 +233,16 @@ def _add_eval_parsers(eval_sub: Any) -> None:
     )
     calib.add_argument("--json", action="store_true", help="one JSON object on stdout")
     calib.set_defaults(func=cmd_eval_calibration)
+    real = eval_sub.add_parser(
+        "real", help="perception and calibration on public real RealSense data (not simulation)"
+    )
+    real.add_argument(
+        "--data",
+        metavar="DIR",
+        help="the real-data folder (default: $ARMVISION_REALDATA, else ../shared/realdata)",
+    )
+    real.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    real.set_defaults(func=cmd_eval_real)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
