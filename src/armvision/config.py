@@ -283,6 +283,35 @@ class SimConfig:
     # Random light direction, brightness and ambient per seed (see sim.scene.random_lighting);
     # off by default so the default scenes keep their fixed lighting.
     randomize_lighting: Bool = False
+    # The real D435's habits (armvision.sim.camera, measured in armvision.eval.clear_depth on
+    # ClearGrasp's real D435 frames): depth on clear plastic (geoms with alpha < 1) missing,
+    # seen behind or wrong in these shares, speckle holes, flying pixels at depth edges, and
+    # per-frame exposure and white-balance gains (1 sigma). None: on in the cluttered profile,
+    # off in the default one (whose frames stay as they were).
+    camera_effects: Bool | None = None
+    clear_missing: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.52
+    clear_behind: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.32
+    # validate_default: the three shares may not add up to more than 1.
+    clear_wrong: Annotated[Float, Field(ge=0.0, le=1.0, validate_default=True)] = 0.06
+    speckle_holes: Annotated[Float, Field(ge=0.0, le=0.05)] = 0.001  # share of pixels
+    flying_pixels: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.72  # share of edge pixels
+    exposure_jitter: Annotated[Float, Field(ge=0.0, le=0.5)] = 0.03
+    white_balance_jitter: Annotated[Float, Field(ge=0.0, le=0.5)] = 0.02
+
+    @property
+    def camera_effects_on(self) -> bool:
+        """``camera_effects``, or for None whether the profile is the cluttered one."""
+        if self.camera_effects is None:
+            return self.profile == "cluttered"
+        return self.camera_effects
+
+    @field_validator("clear_wrong")
+    @classmethod
+    def _clear_shares(cls, wrong: float, info: ValidationInfo) -> float:
+        total = wrong + info.data.get("clear_missing", 0.0) + info.data.get("clear_behind", 0.0)
+        if total > 1.0:
+            raise ValueError(f"clear_missing + clear_behind + this must be at most 1 (got {total})")
+        return wrong
 
     @field_validator("camera_distance_jitter")
     @classmethod
