@@ -157,3 +157,37 @@ def cup_profile(radius: float, height: float, wall: float) -> list[tuple[float, 
         (radius - wall, wall),
         (0.0, wall),
     ]
+
+
+def tapered_cup_profile(
+    radius: float, bottom_radius: float, height: float, wall: float, base: float
+) -> list[tuple[float, float]]:
+    """Outline (r, z) of an open cup ``radius`` wide at the rim and ``bottom_radius`` at the
+    bottom (a tumbler, a plastic cup), side wall ``wall`` and bottom ``base`` thick."""
+    return [
+        (0.0, 0.0),
+        (bottom_radius, 0.0),
+        (radius, height),
+        (radius - wall, height),
+        (bottom_radius - wall, base),
+        (0.0, base),
+    ]
+
+
+def frustum_profile(r_bottom: float, r_top: float, height: float) -> list[tuple[float, float]]:
+    """Outline (r, z) of a solid truncated cone (a bottle's shoulder), z from 0 to ``height``."""
+    return [(0.0, 0.0), (r_bottom, 0.0), (r_top, height), (0.0, height)]
+
+
+def bowl_profile(
+    radius: float, foot_radius: float, height: float, wall: float, n: int = 8
+) -> list[tuple[float, float]]:
+    """Outline (r, z) of a bowl: a flat foot of ``foot_radius``, the side curving out (a
+    quarter ellipse) to the rim at ``radius``, ``height``; wall ``wall`` thick."""
+    t = np.linspace(0.0, math.pi / 2, n)
+    out_r = foot_radius + (radius - foot_radius) * np.sin(t)
+    out_z = height * (1.0 - np.cos(t))
+    outer = [(0.0, 0.0)] + [(float(r), float(z)) for r, z in zip(out_r, out_z)]
+    inner = [(float(r - wall), float(max(z, 0.0) + wall)) for r, z in zip(out_r, out_z)]
+    inner[-1] = (radius - wall, height)
+    return outer + inner[::-1] + [(0.0, wall)]

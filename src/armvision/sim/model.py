@@ -32,6 +32,7 @@ from armvision.sim.scene import (
     BOTTLE_CAP_WIDENING,
     BOTTLE_NECK_RADIUS,
     CUP_WALL,
+    HANDLE_REACH,
     LIQUID_COLOURS,
     LooseTag,
     ObjectSpec,
@@ -187,6 +188,10 @@ def _add_assets(spec: mujoco.MjSpec, config: Config, scene: SceneSpec) -> None:
             v, f = assets.lathe_mesh(assets.cup_profile(obj.radius, obj.height, CUP_WALL), 40)
             vert = _sigs(v, 9)  # see _sig
             spec.add_mesh(name=names.cup_mesh(obj.name), uservert=vert, userface=f.ravel())
+        else:
+            for name, profile in _object_profiles(obj):
+                v, f = assets.lathe_mesh(profile, 40)
+                spec.add_mesh(name=name, uservert=_sigs(v, 9), userface=f.ravel())
     spec.assets = files
 
 
@@ -291,8 +296,30 @@ def _add_marker(spec: mujoco.MjSpec) -> None:
     )
 
 
+def _object_profiles(obj: ObjectSpec) -> list[tuple[str, list[tuple[float, float]]]]:
+    """The lathed meshes (name, outline) of the cluttered profile's objects."""
+    if obj.label == "bottle" and obj.shoulder_height > 0:
+        outline = assets.frustum_profile(obj.radius, obj.neck_r, obj.shoulder_height)
+        return [(names.object_mesh(obj.name, names.SHOULDER), outline)]
+    wall, base = obj.info.wall, obj.info.base
+    if obj.kind == "mug":
+        outline = assets.cup_profile(obj.radius, obj.height, wall)
+        return [(names.object_mesh(obj.name, names.SHELL), outline)]
+    if obj.kind in ("tumbler", "clear_cup"):
+        outline = assets.tapered_cup_profile(obj.radius, obj.lower_radius, obj.height, wall, base)
+        return [(names.object_mesh(obj.name, names.SHELL), outline)]
+    if obj.kind == "bowl":
+        outline = assets.bowl_profile(obj.radius, obj.lower_radius, obj.height, wall)
+        return [(names.object_mesh(obj.name, names.SHELL), outline)]
+    return []
+
+
 def _add_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
-    """A free body: bottle = transparent cylinder + neck + cap; cup = lathed mesh."""
+    """A free body: bottle = transparent cylinder + neck + cap; cup = lathed mesh; the
+    cluttered profile's families and distractors in :func:`_add_cluttered_object`."""
+    if obj.kind not in ("bottle", "cup"):
+        _add_cluttered_object(spec, obj)
+        return
     T_world_obj = T_WORLD_BASE @ make_T(rot_z(obj.yaw), [obj.x, obj.y, 0.0])
     body = spec.worldbody.add_body(name=obj.name, **_pose(T_world_obj))
     body.add_freejoint(name=names.object_joint(obj.name))
@@ -374,3 +401,136 @@ def _add_loose_tag(spec: mujoco.MjSpec, tag: LooseTag, index: int) -> None:
     )
     site = body.add_site(name=name, quat=_sigs(quat_wxyz(R_TAG_PLATE.T)), group=4)
     site.size[0] = 0.004
+
+
+def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
+    """A free body for the cluttered profile's bottle and cup families and distractors.
+
+    Clear and tinted parts keep their colour's alpha (< 1), opaque ones alpha 1. Every part
+    that collides gets the objects' contact and friction; masses add up to the kind's shell
+    mass plus the liquid.
+    """
+    T_world_obj = T_WORLD_BASE @ make_T(rot_z(obj.yaw), [obj.x, obj.y, 0.0])
+    body = spec.worldbody.add_body(name=obj.name, **_pose(T_world_obj))
+    body.add_freejoint(name=names.object_joint(obj.name))
+    colour, accent, shell = list(obj.colour), list(obj.accent), obj.shell_mass
+    r, h = obj.radius, obj.height
+
+    def geom(
+        part: names.ObjectPart,
+        kind: int,
+        size: list[float],
+        pos: list[float],
+        rgba: list[float],
+        mass: float,
+        index: int = 0,
+        contact: bool = True,
+        **kw: object,
+    ) -> None:
+        body.add_geom(
+            name=names.object_geom(obj.name, part, index),
+            type=kind,
+            size=[_sig(v) for v in size],
+            pos=[_sig(v) for v in pos],
+            rgba=rgba,
+            mass=_sig(mass, 4),
+            **(OBJECT_CONTACT if contact else NO_CONTACT),
+            **kw,
+        )
+
+    def cylinder(part: names.ObjectPart, radius: float, z0: float, z1: float, rgba: list[float],
+                 mass: float, index: int = 0, contact: bool = True) -> None:  # fmt: skip
+        half = (z1 - z0) / 2
+        geom(part, GEOM.mjGEOM_CYLINDER, [radius, half, 0.0], [0.0, 0.0, z0 + half], rgba, mass,
+             index, contact)  # fmt: skip
+
+    def mesh(part: names.ObjectPart, rgba: list[float], mass: float, z: float = 0.0) -> None:
+        geom(part, GEOM.mjGEOM_MESH, [0.0, 0.0, 0.0], [0.0, 0.0, z], rgba, mass,
+             meshname=names.object_mesh(obj.name, part))  # fmt: skip
+
+    def capsule(part: names.ObjectPart, a: list[float], b: list[float], radius: float,
+                rgba: list[float], mass: float, index: int) -> None:  # fmt: skip
+        body.add_geom(
+            name=names.object_geom(obj.name, part, index),
+            type=GEOM.mjGEOM_CAPSULE,
+            fromto=[_sig(v) for v in (*a, *b)],
+            size=[_sig(radius), 0.0, 0.0],
+            rgba=rgba,
+            mass=_sig(mass, 4),
+            **OBJECT_CONTACT,
+        )
+
+    def handle(z0: float, z1: float, rgba: list[float], mass: float) -> None:
+        """A handle on the +x side: two arms and an upright, within ``HANDLE_REACH``."""
+        x_in, x_out, t = r - 0.003, r + HANDLE_REACH - 0.006, 0.005
+        capsule(names.HANDLE, [x_in, 0, z0], [x_out, 0, z0], t, rgba, mass / 3, 0)
+        capsule(names.HANDLE, [x_out, 0, z0], [x_out, 0, z1], t, rgba, mass / 3, 1)
+        capsule(names.HANDLE, [x_in, 0, z1], [x_out, 0, z1], t, rgba, mass / 3, 2)
+
+    label = obj.label
+    if label == "bottle":
+        body_h, sh = obj.body_height, obj.shoulder_height
+        neck_top = body_h + sh + obj.neck_length
+        cap_top = neck_top + obj.cap_height
+        cap_r = obj.neck_r * (1.05 if obj.kind == "sports_bottle" else BOTTLE_CAP_WIDENING)
+        cylinder(names.WALL, r, 0.0, body_h, colour, shell * 0.75)
+        mesh(names.SHOULDER, colour, shell * 0.1, z=body_h)
+        cylinder(names.NECK, obj.neck_r, body_h + sh, neck_top, colour, shell * 0.05)
+        cylinder(names.CAP, cap_r, neck_top, cap_top, accent, shell * 0.05)
+        if obj.kind == "squeeze_bottle":  # the nozzle on the flip cap
+            cylinder(names.NOZZLE, 0.004, cap_top, h, accent, shell * 0.05)
+        elif obj.kind == "sports_bottle":  # a loop across the cap
+            loop_r, t = 0.6 * cap_r, 0.003
+            top = h - t
+            capsule(names.LOOP, [-loop_r, 0, cap_top], [-loop_r, 0, top], t, accent, 0.002, 0)
+            capsule(names.LOOP, [-loop_r, 0, top], [loop_r, 0, top], t, accent, 0.002, 1)
+            capsule(names.LOOP, [loop_r, 0, cap_top], [loop_r, 0, top], t, accent, 0.002, 2)
+        if obj.kind == "jug":
+            handle(0.35 * h, 0.68 * h, colour, shell * 0.05)
+    elif label == "cup":
+        if obj.kind == "mug":
+            mesh(names.SHELL, colour, shell * 0.85)
+            handle(0.25 * h, 0.75 * h, colour, shell * 0.15)
+        else:  # tumbler, clear cup: the tapered shell (its convex hull collides)
+            mesh(names.SHELL, colour, shell)
+    elif obj.kind in ("can", "can_stack"):
+        can_h = h / 2 if obj.kind == "can_stack" else h
+        for k in range(2 if obj.kind == "can_stack" else 1):
+            z = k * can_h
+            m = shell / (2 if obj.kind == "can_stack" else 1)
+            cylinder(names.RIM, 0.97 * r, z, z + 0.004, accent, 0.05 * m, k)
+            cylinder(names.WALL, r, z + 0.004, z + can_h - 0.004, colour, 0.9 * m, k)
+            cylinder(names.LID, 0.97 * r, z + can_h - 0.004, z + can_h, accent, 0.05 * m, k)
+    elif obj.kind == "canister":
+        cylinder(names.WALL, r, 0.0, h - 0.02, colour, 0.9 * shell)
+        cylinder(names.LID, r, h - 0.02, h, accent, 0.1 * shell)
+    elif obj.kind in ("box", "block"):
+        half = [obj.width / 2, obj.depth / 2, h / 2]
+        geom(names.BODY, GEOM.mjGEOM_BOX, half, [0.0, 0.0, h / 2], colour, shell)
+    elif obj.kind == "marker":  # lying along x: the barrel and a coloured cap at +x
+        mr, cap_len = obj.depth / 2, 0.035
+        barrel = obj.width - cap_len
+        along_x = _sigs(quat_wxyz(Rotation.from_euler("y", 90, degrees=True).as_matrix()))
+        x0 = -obj.width / 2
+        geom(names.BODY, GEOM.mjGEOM_CYLINDER, [mr, barrel / 2, 0.0], [x0 + barrel / 2, 0.0, mr],
+             colour, 0.7 * shell, quat=along_x)  # fmt: skip
+        geom(names.CAP, GEOM.mjGEOM_CYLINDER, [mr, cap_len / 2, 0.0],
+             [x0 + barrel + cap_len / 2, 0.0, mr], accent, 0.3 * shell, quat=along_x)  # fmt: skip
+    elif obj.kind == "fruit":
+        geom(names.BODY, GEOM.mjGEOM_SPHERE, [r, 0.0, 0.0], [0.0, 0.0, r], colour, shell)
+        cylinder(names.STEM, 0.002, 2 * r - 0.004, h, accent, 0.0005, contact=False)
+    elif obj.kind == "bowl":
+        mesh(names.SHELL, colour, shell)
+    else:  # pragma: no cover - scene.random_cluttered_object knows the same kinds
+        raise SimulationError(f"internal: no model for object kind {obj.kind!r}")
+    if obj.liquid_height > 1e-4:
+        lh = obj.liquid_height
+        cylinder(
+            names.LIQUID,
+            obj.inner_radius - 0.0005,
+            obj.inner_bottom,
+            obj.inner_bottom + lh,
+            list(LIQUID_COLOURS[obj.liquid]),
+            obj.liquid_mass,
+            contact=False,
+        )

@@ -32,18 +32,37 @@ CAMERA_MOUNT_BODY = "camera_mount"
 MARKER_BODY = "marker"
 
 #: Geoms of an object body, named ``f"{object}_{part}"``: a bottle has wall, neck and cap, a
-#: cup a visual shell and a collision wall; both have liquid when not empty.
-ObjectPart = Literal["wall", "neck", "cap", "shell", "liquid"]
+#: cup a visual shell and a collision wall; both have liquid when not empty. The cluttered
+#: profile's bottles add a tapered shoulder (and a nozzle, a loop or handle pieces), cans a
+#: lid and a rim, other distractors a body (see ``sim.model``).
+ObjectPart = Literal[
+    "wall", "neck", "cap", "shell", "liquid", "shoulder", "lid", "rim", "handle", "nozzle",
+    "loop", "body", "stem",
+]  # fmt: skip
 WALL: ObjectPart = "wall"
 NECK: ObjectPart = "neck"
 CAP: ObjectPart = "cap"
 SHELL: ObjectPart = "shell"
 LIQUID: ObjectPart = "liquid"
+SHOULDER: ObjectPart = "shoulder"
+LID: ObjectPart = "lid"
+RIM: ObjectPart = "rim"
+HANDLE: ObjectPart = "handle"
+NOZZLE: ObjectPart = "nozzle"
+LOOP: ObjectPart = "loop"
+BODY: ObjectPart = "body"
+STEM: ObjectPart = "stem"
 BOTTLE_PARTS: tuple[ObjectPart, ...] = (WALL, NECK, CAP, LIQUID)
 
 
-def object_geom(obj: str, part: ObjectPart) -> str:
-    """Name of geom ``part`` of object body ``obj``."""
+def object_geom(obj: str, part: ObjectPart, index: int = 0) -> str:
+    """Name of geom ``part`` of object body ``obj``; ``index`` > 0 numbers repeated parts
+    (the upper can of a stack, a handle's pieces): ``f"{obj}_{part}{index}"``."""
+    return f"{obj}_{part}" if index == 0 else f"{obj}_{part}{index}"
+
+
+def object_mesh(obj: str, part: ObjectPart) -> str:
+    """Name of the mesh of geom ``part`` of object ``obj`` (cluttered profile's shapes)."""
     return f"{obj}_{part}"
 
 

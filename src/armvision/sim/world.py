@@ -76,6 +76,8 @@ class ObjectState:
         return {
             "name": s.name,
             "kind": s.kind,
+            "label": s.label,
+            "fill_visible": s.fill_visible,
             "radius": s.radius,
             "height": s.height,
             "fill": s.fill,
