@@ -33,7 +33,7 @@ def test_perceive_sim_writes_annotated_image_and_matching_detections(tmp_path):
             truth, key=lambda o: np.linalg.norm(np.subtract(o["center_cam"], det["center_cam"]))
         )
         assert np.linalg.norm(np.subtract(nearest["center_cam"], det["center_cam"])) < 0.02
-        assert det["label"] == nearest["kind"]
+        assert det["label"] == nearest["label"]
         if det["label"] == "bottle":
             assert abs(det["fill"] - nearest["fill"]) < 0.1
 

@@ -123,8 +123,8 @@ def demo_scene(config: Config, seed: int):
     drafts: list[ObjectSpec] = []
     while any(want.values()):
         obj = random_object(rng, f"object{len(drafts)}")
-        if want[obj.kind] > 0:
-            want[obj.kind] -= 1
+        if want[obj.label] > 0:
+            want[obj.label] -= 1
             drafts.append(obj)
     xy = place_without_overlap(rng, [o.radius for o in drafts])
     objects = tuple(
@@ -209,7 +209,7 @@ def _analyse_bottles(
     from armvision.tasks.analyze import analyze
 
     for name, obj in truth.items():
-        if obj.spec.kind != "bottle" or name not in matched:
+        if obj.spec.label != "bottle" or name not in matched:
             continue
         track_id = matched[name]
         say(f"analysing the bottle of track {track_id}")
@@ -252,7 +252,7 @@ def _grab_bottle(system: Any, world: Any, report: DemoReport, truth: dict, say: 
         "-",
         status.phase == "succeeded"
         and held is not None
-        and truth[held].spec.kind == "bottle"
+        and truth[held].spec.label == "bottle"
         and lift is not None
         and lift >= LIFT_TOL_M,
     )
@@ -302,7 +302,7 @@ def _report_detection(report: DemoReport, state, truth: dict) -> dict[str, int]:
             f"{t.label}{height}",
             f"{o.spec.kind}, h {100 * o.spec.height:.1f} cm",
             f"{err_mm:.1f} mm",
-            t.label == o.spec.kind and err_mm <= POSITION_TOL_MM,
+            t.label == o.spec.label and err_mm <= POSITION_TOL_MM,
         )
         result[n] = t.id
     extra = len(tracks) - len(matched)

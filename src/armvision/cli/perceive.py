@@ -244,6 +244,7 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
                     {
                         "name": o.spec.name,
                         "kind": o.spec.kind,
+                        "label": o.spec.label,
                         "fill": o.spec.fill,
                         "center_cam": (
                             T_cam_base[:3, :3] @ o.T_base_obj[:3, 3]

@@ -107,6 +107,7 @@ def _sim_truth(system: System) -> dict[str, Any]:
             {
                 "name": o.spec.name,
                 "kind": o.spec.kind,
+                "label": o.spec.label,
                 "position": [round(float(v), 4) for v in o.T_base_obj[:3, 3]],
                 "fill": round(o.spec.fill, 4),
                 "liquid": o.spec.liquid,

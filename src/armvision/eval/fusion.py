@@ -503,13 +503,13 @@ def _track_metrics(
             last_id[k] = track_id
             errors[stage][k].append(p - truth[k])
             labels_n += 1
-            labels_ok += label == scene.objects[k].kind
+            labels_ok += label == scene.objects[k].label
 
     def pooled(stage: str, which: list[int]) -> float:
         return _rmse_mm(np.concatenate([np.reshape(errors[stage][k], (-1, 3)) for k in which]))
 
     everything = list(range(len(names)))
-    bottles = [k for k, o in enumerate(scene.objects) if o.kind == "bottle"]
+    bottles = [k for k, o in enumerate(scene.objects) if o.label == "bottle"]
     return {
         "static_rmse_mm": pooled("static", everything),
         "static_rmse_mm_bottles": pooled("static", bottles),

@@ -62,7 +62,8 @@ def run_trial(
         objects = {o.spec.name: o for o in world.objects()}
         lift = None if held is None else float(objects[held].T_base_obj[2, 3]) - start_z[held]
         kind = None if held is None else objects[held].spec.kind
-        ok = held is not None and kind == "bottle" and lift is not None and lift >= LIFT_SUCCESS_M
+        label = None if held is None else objects[held].spec.label
+        ok = held is not None and label == "bottle" and lift is not None and lift >= LIFT_SUCCESS_M
         result = dict(status.result or {})
         target = result.get("target")
         aim_error_mm = None
@@ -125,7 +126,7 @@ def evaluate_grab(
     scene_seed = seed
     while len(rows) < trials:
         scene = generate_scene(config, scene_seed)
-        if not any(o.kind == "bottle" for o in scene.objects):
+        if not any(o.label == "bottle" for o in scene.objects):
             skipped.append(scene_seed)
         else:
             row = run_trial(config, scene_seed, status, arm_seed)

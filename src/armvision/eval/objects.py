@@ -21,6 +21,15 @@ render (MuJoCo writes no depth for clear bottle walls, so an object behind a cle
 seen, as a depth camera sees it). A detection matched to an object that is not visible is
 neither a hit nor a false positive; every other unmatched detection (on the robot, the table,
 a phantom) is a false positive.
+
+Distractors (truth label ``other``: cans, boxes, bowls, ... in the cluttered profile) are
+matched like the rest; a detection matched to one is a false positive and the distractor was
+"called" a bottle or cup. The summary gives, besides the overall figures, per label
+(``bottle``, ``cup``) the recall (visible objects found with their label) and the precision
+(detections of that label that were right, those matched to an object out of view excepted),
+``distractor_rate`` (the share of visible distractor appearances reported as bottle or cup) and
+``found_by_kind``: for every object kind (bottle and cup families, distractor kinds) how often
+a visible one was matched by a detection.
 """
 
 from __future__ import annotations
@@ -46,16 +55,17 @@ _NECK_RADIUS_FRACTION = 0.45
 
 
 def surface_samples_obj(
-    kind: str, radius: float, height: float, body_height: float, n_around: int = 48
+    label: str, radius: float, height: float, body_height: float, n_around: int = 48
 ) -> tuple[Array, Array]:
     """Points on an object's side wall and their outward normals, object frame (z up), (N, 3).
 
-    Cups: one cylinder of ``radius`` from 0 to ``height``. Bottles: the body cylinder to
-    ``body_height`` and the neck and cap above it at ~0.45 x the radius.
+    Bottles: the body cylinder to ``body_height`` and the neck and cap above it at ~0.45 x
+    the radius. Everything else (cups, distractors): one cylinder of ``radius`` from 0 to
+    ``height``, the object's bounding cylinder.
     """
     angles = np.linspace(0.0, 2.0 * math.pi, n_around, endpoint=False)
     rings: list[tuple[float, Array]] = []
-    if kind == "bottle":
+    if label == "bottle":
         rings += [(radius, z) for z in np.linspace(0.005, body_height - 0.005, 16)]
         rings += [
             (_NECK_RADIUS_FRACTION * radius, z)
@@ -106,6 +116,7 @@ class _ObjectRecord(TypedDict):
 
     name: str
     kind: str
+    truth: str
     radius: float
     height: float
     center_cam: Array
@@ -119,11 +130,14 @@ class _ObjectRecord(TypedDict):
 def match_detections(
     centers_true: Array, centers_detected: Array, gate_m: float
 ) -> list[tuple[int, int, float]]:
-    """Hungarian matching on 3-D distance: (true index, detection index, distance) within gate."""
+    """Hungarian matching on 3-D distance: (true index, detection index, distance) within gate.
+
+    Pairs beyond the gate cost the same large amount, so that a far detection (a phantom)
+    cannot pull the assignment of the near ones off their objects."""
     if len(centers_true) == 0 or len(centers_detected) == 0:
         return []
     cost = np.linalg.norm(centers_true[:, None, :] - centers_detected[None, :, :], axis=2)
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = linear_sum_assignment(np.where(cost < gate_m, cost, 1e6))
     return [(int(i), int(j), float(cost[i, j])) for i, j in zip(rows, cols) if cost[i, j] < gate_m]
 
 
@@ -155,12 +169,15 @@ def _true_objects(
     for state in truth.objects:
         spec = state.spec
         T_cam_obj = T_cam_base @ state.T_base_obj
-        points, normals = surface_samples_obj(spec.kind, spec.radius, spec.height, spec.body_height)
+        points, normals = surface_samples_obj(
+            spec.label, spec.radius, spec.height, spec.body_height
+        )
         fraction = visible_fraction(frame.intrinsics, T_cam_obj, points, normals, true_depth)
         objects.append(
             {
                 "name": spec.name,
                 "kind": spec.kind,
+                "truth": spec.label,
                 "radius": spec.radius,
                 "height": spec.height,
                 "center_cam": transform_points(T_cam_obj, [0.0, 0.0, spec.height / 2.0]),
@@ -171,9 +188,26 @@ def _true_objects(
     return objects
 
 
+#: The labels a detector reports; every other true object is a distractor (truth "other").
+CONTAINERS = ("bottle", "cup")
+
+
+@dataclasses.dataclass
+class _LabelCounts:
+    """One label's tallies: visible true objects, those found with this label, detections
+    reported with this label (those matched to an object out of view excepted), and how many
+    of them were right."""
+
+    visible: int = 0
+    found: int = 0
+    reported: int = 0
+    correct: int = 0
+
+
 @dataclasses.dataclass
 class _Counts:
-    """The tallies over the scenes."""
+    """The tallies over the scenes. Bottles and cups count for recall and the centre error;
+    a distractor matched by a detection is that detection's false positive and a call."""
 
     errors_mm: list[float] = dataclasses.field(default_factory=list)
     visible: int = 0
@@ -182,46 +216,85 @@ class _Counts:
     label_ok: int = 0
     matched: int = 0
     objects: int = 0
+    labels: dict[str, _LabelCounts] = dataclasses.field(
+        default_factory=lambda: {label: _LabelCounts() for label in CONTAINERS}
+    )
+    #: per object kind (family or distractor): [visible appearances, found/called]
+    kinds: dict[str, list[int]] = dataclasses.field(default_factory=dict)
+    distractors_visible: int = 0
+    distractors_called: int = 0
 
 
 def _score_scene(
     objects: list[_ObjectRecord], detections: list[Detection], gate_m: float, counts: _Counts
 ) -> list[int]:
     """Match the detections to the objects (filling in each object's match) and count; the
-    indices of the false positives."""
+    indices of the false positives (unmatched, or matched to a distractor)."""
     centers_true = np.array([o["center_cam"] for o in objects]).reshape(-1, 3)
     centers_det = np.array([d.center_cam for d in detections]).reshape(-1, 3)
     matches = match_detections(centers_true, centers_det, gate_m)
-    matched_det = {j for _, j, _ in matches}
     matched_obj = {i: (j, dist) for i, j, dist in matches}
-    scene_fp = [j for j in range(len(detections)) if j not in matched_det]
+    owner = {j: i for i, j, _ in matches}
     for i, obj in enumerate(objects):
         match = matched_obj.get(i)
         obj["detection"] = None if match is None else match[0]
         obj["center_error_mm"] = None if match is None else 1e3 * match[1]
         obj["label"] = None if match is None else detections[match[0]].label
-        if obj["visible"]:
-            counts.visible += 1
-            if match is not None:
-                counts.hits += 1
-        if match is not None:
-            j, dist = match
-            counts.matched += 1
-            counts.errors_mm.append(1e3 * dist)
-            counts.label_ok += int(detections[j].label == obj["kind"])
+        _count_object(obj, match, detections, counts)
+    scene_fp = []
+    for j, det in enumerate(detections):
+        k = owner.get(j)
+        truth = None if k is None else objects[k]
+        if truth is None or truth["truth"] not in CONTAINERS:
+            scene_fp.append(j)
+        if truth is not None and truth["truth"] in CONTAINERS and not truth["visible"]:
+            continue  # an object out of view: neither right nor wrong
+        if det.label in counts.labels:
+            tally = counts.labels[det.label]
+            tally.reported += 1
+            tally.correct += int(truth is not None and truth["truth"] == det.label)
     counts.false_positives += len(scene_fp)
     counts.objects += len(objects)
     return scene_fp
 
 
+def _count_object(
+    obj: _ObjectRecord, match: tuple[int, float] | None, detections: list[Detection], c: _Counts
+) -> None:
+    """One true object's part of the tallies."""
+    kind = c.kinds.setdefault(obj["kind"], [0, 0])
+    if obj["visible"]:
+        kind[0] += 1
+        kind[1] += int(match is not None)
+    if obj["truth"] not in CONTAINERS:
+        if obj["visible"]:
+            c.distractors_visible += 1
+            c.distractors_called += int(match is not None)
+        return
+    tally = c.labels[obj["truth"]]
+    if obj["visible"]:
+        c.visible += 1
+        tally.visible += 1
+        if match is not None:
+            c.hits += 1
+            tally.found += int(detections[match[0]].label == obj["truth"])
+    if match is not None:
+        j, dist = match
+        c.matched += 1
+        c.errors_mm.append(1e3 * dist)
+        c.label_ok += int(detections[j].label == obj["truth"])
+
+
+def _ratio(num: int, den: int) -> float:
+    return num / den if den else float("nan")
+
+
 def _summary(counts: _Counts, scenes: int) -> dict[str, Any]:
     errors_mm = counts.errors_mm
-    return {
-        "object_recall": counts.hits / counts.visible if counts.visible else float("nan"),
+    summary: dict[str, Any] = {
+        "object_recall": _ratio(counts.hits, counts.visible),
         "object_false_positives": counts.false_positives,
-        "object_label_accuracy": (
-            counts.label_ok / counts.matched if counts.matched else float("nan")
-        ),
+        "object_label_accuracy": _ratio(counts.label_ok, counts.matched),
         "object_center_error_mm_median": (
             float(np.median(errors_mm)) if errors_mm else float("nan")
         ),
@@ -233,6 +306,16 @@ def _summary(counts: _Counts, scenes: int) -> dict[str, Any]:
         "objects_visible": counts.visible,
         "objects_matched": counts.matched,
     }
+    for label, tally in counts.labels.items():
+        summary[f"object_recall_{label}"] = _ratio(tally.found, tally.visible)
+        summary[f"object_precision_{label}"] = _ratio(tally.correct, tally.reported)
+    summary["distractor_rate"] = _ratio(counts.distractors_called, counts.distractors_visible)
+    summary["distractors_visible"] = counts.distractors_visible
+    summary["found_by_kind"] = {
+        kind: {"visible": seen, "found": found, "rate": _ratio(found, seen)}
+        for kind, (seen, found) in sorted(counts.kinds.items())
+    }
+    return summary
 
 
 def evaluate_objects(
@@ -248,7 +331,9 @@ def evaluate_objects(
     """Detection figures over one frame per seed; see the module docstring for the rules.
 
     Returns {"summary": {object_recall, object_false_positives, object_label_accuracy,
-    object_center_error_mm_median, scenes, objects, ...}, "per_scene": [...]}.
+    object_center_error_mm_median, object_recall_bottle, object_recall_cup,
+    object_precision_bottle, object_precision_cup, distractor_rate, found_by_kind, scenes,
+    objects, ...}, "per_scene": [...]}.
     """
     config = dataclasses.replace(
         config, sim=dataclasses.replace(config.sim, randomize_camera=randomize_camera)
