@@ -162,11 +162,32 @@ def _say(message: str) -> None:
 
 
 def _print_summary(title: str, summary: dict) -> None:
+    """The summary's figures a line each; a nested table (per kind, per family) after them."""
     print(title)
-    width = max(len(k) for k in summary)
-    for key, value in summary.items():
+    flat = {k: v for k, v in summary.items() if not isinstance(v, dict)}
+    width = max((len(k) for k in flat), default=0)
+    for key, value in flat.items():
         shown = f"{value:.3f}" if isinstance(value, float) else str(value)
         print(f"  {key:<{width}}  {shown}")
+    for key, table in summary.items():
+        if isinstance(table, dict) and table:
+            _print_table(key, table)
+
+
+def _print_table(title: str, rows: dict) -> None:
+    """``{row: {column: value}}`` as an aligned table."""
+    columns = list(dict.fromkeys(c for row in rows.values() for c in row))
+    width = max(len(str(r)) for r in rows)
+
+    def cell(value: object) -> str:
+        return f"{value:.3f}" if isinstance(value, float) else str(value)
+
+    print(f"  {title}:")
+    print("    " + f"{'':<{width}}" + "".join(f"  {c:>10}" for c in columns))
+    for name, row in rows.items():
+        print(
+            "    " + f"{name:<{width}}" + "".join(f"  {cell(row.get(c, '')):>10}" for c in columns)
+        )
 
 
 def _sim_calibration_path(path: str) -> Path:

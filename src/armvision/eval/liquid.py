@@ -24,17 +24,20 @@ from armvision.camera.frames import Intrinsics, pixel_box, project
 from armvision.config import Config
 from armvision.geometry import inv_T
 from armvision.perception.liquid import LiquidLevelMeter
-from armvision.sim import names
 from armvision.sim._mujoco import mujoco
 from armvision.sim.camera import SimCamera
 from armvision.sim.scene import (
     BOTTLE_CAP_WIDENING,
+    BOTTLE_FAMILIES,
     BOTTLE_NECK_RADIUS,
+    DISTRACTOR_KINDS,
     LIQUID_COLOURS,
     ObjectSpec,
     SceneSpec,
+    place_cluttered,
     place_without_overlap,
     random_camera_pose,
+    random_cluttered_object,
     random_lighting,
 )
 from armvision.sim.world import SimWorld
@@ -58,8 +61,25 @@ def random_bottle(rng: np.random.Generator, name: str) -> ObjectSpec:
     )
 
 
+#: Distractors standing among the bottles of a cluttered liquid scene.
+CLUTTERED_DISTRACTORS = 2
+#: The meter has no "unknown" answer yet: a reading with less confidence than this counts as
+#: one (what an opaque bottle, whose liquid cannot be seen, should get).
+UNKNOWN_CONFIDENCE = 0.05
+
+
+def random_fill(rng: np.random.Generator) -> float:
+    """Fill 0-100 %: 10 % exactly empty, 10 % exactly full, the rest uniform."""
+    u = rng.uniform()
+    return 0.0 if u < 0.1 else 1.0 if u < 0.2 else float(rng.uniform(0.0, 1.0))
+
+
 def liquid_scene(config: Config, seed: int, bottles: int = 4) -> SceneSpec:
-    """A scene of ``bottles`` random bottles, random camera placement and lighting."""
+    """A scene of ``bottles`` random bottles, random camera placement and lighting; with
+    ``sim.profile = "cluttered"`` the bottles come from every family (clear, tinted, opaque)
+    with distractors among them (:func:`cluttered_liquid_scene`)."""
+    if config.sim.profile == "cluttered":
+        return cluttered_liquid_scene(config, seed, bottles)
     rng = np.random.default_rng([seed, 0x11F])
     sim = dataclasses.replace(config.sim, randomize_camera=True)
     T_base_cam = random_camera_pose(sim, rng)
@@ -70,6 +90,26 @@ def liquid_scene(config: Config, seed: int, bottles: int = 4) -> SceneSpec:
         for o, (x, y) in zip(drafts, xy)
     )
     return SceneSpec(T_base_cam, objects, (), random_lighting(rng))
+
+
+def cluttered_liquid_scene(config: Config, seed: int, bottles: int = 4) -> SceneSpec:
+    """``bottles`` bottles of random families (fill as :func:`random_fill`) and
+    :data:`CLUTTERED_DISTRACTORS` distractors, placed as the cluttered profile places them
+    (1-5 cm apart, some behind others), random camera and lighting."""
+    rng = np.random.default_rng([seed, 0x11F, 0xC1077E4])
+    sim = dataclasses.replace(config.sim, randomize_camera=True)
+    T_base_cam = random_camera_pose(sim, rng)
+    kinds = [str(rng.choice(BOTTLE_FAMILIES)) for _ in range(bottles)]
+    kinds += [str(rng.choice(DISTRACTOR_KINDS)) for _ in range(CLUTTERED_DISTRACTORS)]
+    drafts = []
+    for i, kind in enumerate(kinds):
+        obj = random_cluttered_object(rng, f"object{i}", kind)
+        if obj.label == "bottle":
+            obj = dataclasses.replace(obj, fill=random_fill(rng))
+        drafts.append(obj)
+    cam_xy = (float(T_base_cam[0, 3]), float(T_base_cam[1, 3]))
+    objects, _ = place_cluttered(rng, drafts, cam_xy)
+    return SceneSpec(T_base_cam, tuple(objects), (), random_lighting(rng))
 
 
 def bottle_outline_cam(spec: ObjectSpec, T_cam_obj: NDArray[np.float64]) -> list[NDArray]:
@@ -120,11 +160,9 @@ def _visible_fraction(
 ) -> float:
     """Fraction of the bottle's true silhouette ``mask`` where the segmentation shows the
     bottle itself (not another object or the arm in front)."""
-    geoms = [
-        mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, names.object_geom(spec.name, part))
-        for part in names.BOTTLE_PARTS
-    ]
-    return float(np.isin(seg[mask], [g for g in geoms if g >= 0]).mean())
+    body = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_BODY, spec.name)
+    geoms = np.flatnonzero(world.model.geom_bodyid == body)  # every part of this bottle
+    return float(np.isin(seg[mask], geoms).mean())
 
 
 def _bottle_record(
@@ -152,6 +190,8 @@ def _bottle_record(
     return {
         "scene": scene_seed,
         "name": spec.name,
+        "kind": spec.kind,
+        "fill_visible": spec.fill_visible,
         "liquid": spec.liquid,
         "radius": spec.radius,
         "height": spec.height,
@@ -200,6 +240,8 @@ def _measure_scene(
         T_cam_base = inv_T(world.T_base_cam())
         for state in world.objects():
             spec = state.spec
+            if spec.label != "bottle":
+                continue  # a distractor of a cluttered scene
             T_cam_obj = T_cam_base @ state.T_base_obj
             box, mask = true_box_and_mask(intr, spec, T_cam_obj)
             inside = (
@@ -256,6 +298,30 @@ def _summary(tally: _Tally, scenes: int) -> dict[str, Any]:
         "mae_pct_depth_cue": cue_mae("fill_depth_cue"),
         "ms_per_bottle": float(np.median(ms_profile)) if ms_profile else math.nan,
         "ms_per_bottle_hough": float(np.median(ms_hough)) if ms_hough else math.nan,
+        **_opaque_summary(per_bottle),
+        "by_family": _by_family(per_bottle),
+    }
+
+
+def _by_family(per_bottle: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per bottle family: how many were measured and the default method's MAE (points)."""
+    out: dict[str, dict[str, Any]] = {}
+    for kind in sorted({b["kind"] for b in per_bottle}):
+        errs = [abs(b["error_pct"]) for b in per_bottle if b["kind"] == kind]
+        out[kind] = {"bottles": len(errs), "mae_pct": float(np.mean(errs))}
+    return out
+
+
+def _opaque_summary(per_bottle: list[dict[str, Any]]) -> dict[str, Any]:
+    """Bottles whose liquid cannot be seen: the meter should say it does not know (a
+    confidence below :data:`UNKNOWN_CONFIDENCE`); how often it did, and its clear-bottle MAE."""
+    opaque = [b for b in per_bottle if not b["fill_visible"]]
+    clear = [abs(b["error_pct"]) for b in per_bottle if b["fill_visible"]]
+    unknown = sum(b["confidence"] < UNKNOWN_CONFIDENCE for b in opaque)
+    return {
+        "mae_pct_fill_visible": float(np.mean(clear)) if clear else math.nan,
+        "opaque_bottles": len(opaque),
+        "opaque_unknown_rate": unknown / len(opaque) if opaque else math.nan,
     }
 
 
