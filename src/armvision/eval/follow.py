@@ -58,6 +58,10 @@ WARM_UP_S = 0.5
 MODES = ("servo", "blocking")
 
 
+#: Free table left between the sliding tag and any object standing near its circle, m.
+PATH_CLEARANCE_M = 0.01
+
+
 def circle_path(
     center: tuple[float, float],
     radius: float,
@@ -247,7 +251,8 @@ def _follow_scene(
 ) -> tuple[Any, Callable[[float], Array], float, float]:
     """The seed's scene with the loose tag at the start of its circle: (scene, path,
     start angle, direction)."""
-    from armvision.sim.scene import LooseTag, generate_scene
+    from armvision.sim.assets import tag_outer_size
+    from armvision.sim.scene import LooseTag, footprint_of, generate_scene
 
     rng = np.random.default_rng([seed, 0xF011])
     phase = float(rng.uniform(-math.pi, math.pi))
@@ -257,7 +262,21 @@ def _follow_scene(
     start = path(0.0)[:3, 3]
     base_scene = generate_scene(config, seed)
     tag = LooseTag(config.follow.tag_id, float(start[0]), float(start[1]), yaw, config.tag.size)
-    scene = dataclasses.replace(base_scene, loose_tags=(tag,))
+    kept = base_scene.objects
+    if config.sim.profile == "cluttered":
+        # The tag slides on the table; a cluttered scene's objects stand so close that those
+        # on its circle would hide it all the way round: they are left out, the rest stay
+        # around it. (The default scenes are kept as they always were, for their figures.)
+        clearance = tag_outer_size(config.tag.size) / math.sqrt(2.0) + PATH_CLEARANCE_M
+        lap = np.linspace(0.0, 2.0 * math.pi * radius / speed, 72)
+        on_path = [path(float(t))[:2, 3] for t in lap]
+        kept = tuple(
+            o
+            for o in kept
+            if min(footprint_of(o).distance_to_point(float(x), float(y)) for x, y in on_path)
+            > clearance
+        )
+    scene = dataclasses.replace(base_scene, objects=kept, loose_tags=(tag,))
     return scene, path, phase, direction
 
 
