@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -415,18 +415,26 @@ def _pick(rng: np.random.Generator, options: tuple[tuple[float, float, float, fl
     return options[int(rng.integers(len(options)))]
 
 
+def object_kind(name: str) -> ObjectKind:
+    """``name`` as an object kind; SimulationError naming the kinds if it is none."""
+    if name not in KINDS:
+        raise SimulationError(f"no object kind {name!r}; the kinds are {', '.join(KINDS)}")
+    return cast(ObjectKind, name)
+
+
 def random_cluttered_object(rng: np.random.Generator, name: str, kind: str) -> ObjectSpec:
     """An object of ``kind`` (a bottle or cup family or a distractor) with random size and,
     for containers, fill and liquid; not yet placed. Bottles and cups stay below 0.038 m
     in radius so the open gripper fits around them."""
+    known = object_kind(kind)
     u = rng.uniform
 
     def container(**kw: Any) -> ObjectSpec:
         liquid = str(rng.choice(list(LIQUID_COLOURS)))
-        return ObjectSpec(name, kind, fill=float(u(0.1, 0.9)), liquid=liquid, x=0.0, y=0.0, **kw)  # type: ignore[arg-type]
+        return ObjectSpec(name, known, fill=float(u(0.1, 0.9)), liquid=liquid, x=0.0, y=0.0, **kw)
 
     def other(**kw: Any) -> ObjectSpec:
-        return ObjectSpec(name, kind, fill=0.0, liquid="water", x=0.0, y=0.0, **kw)  # type: ignore[arg-type]
+        return ObjectSpec(name, known, fill=0.0, liquid="water", x=0.0, y=0.0, **kw)
 
     f = float
     if kind == "wine_bottle":  # tall neck, shoulder at 60-65 %
