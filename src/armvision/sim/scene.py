@@ -753,7 +753,7 @@ def cluttered_kinds(rng: np.random.Generator, n: int) -> list[str]:
 
 def generate_cluttered_scene(config: Config, seed: int) -> SceneSpec:
     """The cluttered profile's scene for ``seed``: 3-8 objects 1-5 cm apart, some partly
-    hidden behind others, a third to a half of them distractors."""
+    hidden behind others, a third to a half of them distractors, random lighting."""
     sim = config.sim
     rng = np.random.default_rng([seed, CLUTTERED_SALT])
     T_base_cam = random_camera_pose(sim, rng)
@@ -770,11 +770,9 @@ def generate_cluttered_scene(config: Config, seed: int) -> SceneSpec:
         LooseTag(free_ids[k], x, y, float(rng.uniform(-math.pi, math.pi)), config.tag.size)
         for k, (x, y) in enumerate(tag_xy)
     )
-    lighting = (
-        random_lighting(np.random.default_rng([seed, 0x11647]))
-        if sim.randomize_lighting
-        else Lighting()
-    )
+    # A hard bench is lit as a real room is: from the randomised set, whatever
+    # sim.randomize_lighting says (that switch keeps the default profile's fixed light).
+    lighting = random_lighting(np.random.default_rng([seed, 0x11647]))
     return SceneSpec(T_base_cam, tuple(objects), loose, lighting)
 
 
