@@ -350,7 +350,10 @@ def test_the_readable_table(capsys, tmp_path, color_png):
     assert "0 tag(s)" in out and "wrote perceive/annotated.png and perceive/detections.json" in out
 
 
-REALDATA = Path(os.environ.get("ARMVISION_REALDATA", "/work/shared/realdata"))
+# The real-data folder beside the project (../shared/realdata), or $ARMVISION_REALDATA.
+REALDATA = Path(
+    os.environ.get("ARMVISION_REALDATA") or Path(__file__).parents[3] / "shared/realdata"
+)
 CLEARGRASP = REALDATA / "cleargrasp_real_d435" / "000000080-transparent"
 POSECNN = REALDATA / "posecnn_ycb_demo" / "000000"
 

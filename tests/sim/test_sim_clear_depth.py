@@ -1,7 +1,8 @@
 """SimCamera's real-camera habits: clear plastic, speckle, flying pixels, colour gains.
 
-The real D435 side runs only where ClearGrasp's frames are (``$ARMVISION_CLEARGRASP_D435`` or
-/work/shared/realdata/cleargrasp_real_d435); they are never part of the repository.
+The real D435 side runs only where ClearGrasp's frames are (``$ARMVISION_REALDATA``/cleargrasp_real_d435, or
+../shared/realdata/cleargrasp_real_d435 beside the project); they are never part of the
+repository.
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ from armvision.eval.clear_depth import CATEGORIES, clear_bottle_scene, measure_r
 from armvision.sim.camera import SimCamera, realsense_depth_model
 from armvision.sim.world import SimWorld
 
-REAL = Path(
-    os.environ.get("ARMVISION_CLEARGRASP_D435", "/work/shared/realdata/cleargrasp_real_d435")
+# The real-data folder beside the project (../shared/realdata), or $ARMVISION_REALDATA.
+REAL = (
+    Path(os.environ.get("ARMVISION_REALDATA") or Path(__file__).parents[3] / "shared/realdata")
+    / "cleargrasp_real_d435"
 )
 
 
