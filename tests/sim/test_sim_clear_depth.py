@@ -1,8 +1,7 @@
 """SimCamera's real-camera habits: clear plastic, speckle, flying pixels, colour gains.
 
-The real D435 side runs only where ClearGrasp's frames are (``$ARMVISION_REALDATA``/cleargrasp_real_d435, or
-../shared/realdata/cleargrasp_real_d435 beside the project); they are never part of the
-repository.
+The real D435 side runs only where ClearGrasp's frames are (in ``$ARMVISION_REALDATA``, or
+in ../shared/realdata beside the project); they are never part of the repository.
 """
 
 from __future__ import annotations
