@@ -14,6 +14,8 @@ at ``TABLE_TOP_Z`` with the same orientation, so ``T_world_base`` is a pure tran
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import resources
 
 import numpy as np
@@ -35,6 +37,7 @@ from armvision.sim.scene import (
     HANDLE_REACH,
     LIQUID_COLOURS,
     LooseTag,
+    ObjectKind,
     ObjectSpec,
     SceneSpec,
 )
@@ -403,20 +406,24 @@ def _add_loose_tag(spec: mujoco.MjSpec, tag: LooseTag, index: int) -> None:
     site.size[0] = 0.004
 
 
-def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
-    """A free body for the cluttered profile's bottle and cup families and distractors.
+@dataclass(frozen=True)
+class _Parts:
+    """Adds the geoms of one cluttered object to its body: sizes and positions in the object's
+    frame (bottom centre, z up), names from :mod:`armvision.sim.names`."""
 
-    Clear and tinted parts keep their colour's alpha (< 1), opaque ones alpha 1. Every part
-    that collides gets the objects' contact and friction; masses add up to the kind's shell
-    mass plus the liquid.
-    """
-    T_world_obj = T_WORLD_BASE @ make_T(rot_z(obj.yaw), [obj.x, obj.y, 0.0])
-    body = spec.worldbody.add_body(name=obj.name, **_pose(T_world_obj))
-    body.add_freejoint(name=names.object_joint(obj.name))
-    colour, accent, shell = list(obj.colour), list(obj.accent), obj.shell_mass
-    r, h = obj.radius, obj.height
+    body: mujoco.MjsBody
+    obj: ObjectSpec
+
+    @property
+    def colour(self) -> list[float]:
+        return list(self.obj.colour)
+
+    @property
+    def accent(self) -> list[float]:
+        return list(self.obj.accent)
 
     def geom(
+        self,
         part: names.ObjectPart,
         kind: int,
         size: list[float],
@@ -427,8 +434,8 @@ def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
         contact: bool = True,
         **kw: object,
     ) -> None:
-        body.add_geom(
-            name=names.object_geom(obj.name, part, index),
+        self.body.add_geom(
+            name=names.object_geom(self.obj.name, part, index),
             type=kind,
             size=[_sig(v) for v in size],
             pos=[_sig(v) for v in pos],
@@ -438,20 +445,21 @@ def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
             **kw,
         )
 
-    def cylinder(part: names.ObjectPart, radius: float, z0: float, z1: float, rgba: list[float],
-                 mass: float, index: int = 0, contact: bool = True) -> None:  # fmt: skip
+    def cylinder(self, part: names.ObjectPart, radius: float, z0: float, z1: float,
+                 rgba: list[float], mass: float, index: int = 0,
+                 contact: bool = True) -> None:  # fmt: skip
         half = (z1 - z0) / 2
-        geom(part, GEOM.mjGEOM_CYLINDER, [radius, half, 0.0], [0.0, 0.0, z0 + half], rgba, mass,
-             index, contact)  # fmt: skip
+        self.geom(part, GEOM.mjGEOM_CYLINDER, [radius, half, 0.0], [0.0, 0.0, z0 + half], rgba,
+                  mass, index, contact)  # fmt: skip
 
-    def mesh(part: names.ObjectPart, rgba: list[float], mass: float, z: float = 0.0) -> None:
-        geom(part, GEOM.mjGEOM_MESH, [0.0, 0.0, 0.0], [0.0, 0.0, z], rgba, mass,
-             meshname=names.object_mesh(obj.name, part))  # fmt: skip
+    def mesh(self, part: names.ObjectPart, rgba: list[float], mass: float, z: float = 0.0) -> None:
+        self.geom(part, GEOM.mjGEOM_MESH, [0.0, 0.0, 0.0], [0.0, 0.0, z], rgba, mass,
+                  meshname=names.object_mesh(self.obj.name, part))  # fmt: skip
 
-    def capsule(part: names.ObjectPart, a: list[float], b: list[float], radius: float,
+    def capsule(self, part: names.ObjectPart, a: list[float], b: list[float], radius: float,
                 rgba: list[float], mass: float, index: int) -> None:  # fmt: skip
-        body.add_geom(
-            name=names.object_geom(obj.name, part, index),
+        self.body.add_geom(
+            name=names.object_geom(self.obj.name, part, index),
             type=GEOM.mjGEOM_CAPSULE,
             fromto=[_sig(v) for v in (*a, *b)],
             size=[_sig(radius), 0.0, 0.0],
@@ -460,72 +468,155 @@ def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
             **OBJECT_CONTACT,
         )
 
-    def handle(z0: float, z1: float, rgba: list[float], mass: float) -> None:
+    def handle(self, z0: float, z1: float, rgba: list[float], mass: float) -> None:
         """A handle on the +x side: two arms and an upright, within ``HANDLE_REACH``."""
+        r = self.obj.radius
         x_in, x_out, t = r - 0.003, r + HANDLE_REACH - 0.006, 0.005
-        capsule(names.HANDLE, [x_in, 0, z0], [x_out, 0, z0], t, rgba, mass / 3, 0)
-        capsule(names.HANDLE, [x_out, 0, z0], [x_out, 0, z1], t, rgba, mass / 3, 1)
-        capsule(names.HANDLE, [x_in, 0, z1], [x_out, 0, z1], t, rgba, mass / 3, 2)
+        self.capsule(names.HANDLE, [x_in, 0, z0], [x_out, 0, z0], t, rgba, mass / 3, 0)
+        self.capsule(names.HANDLE, [x_out, 0, z0], [x_out, 0, z1], t, rgba, mass / 3, 1)
+        self.capsule(names.HANDLE, [x_in, 0, z1], [x_out, 0, z1], t, rgba, mass / 3, 2)
 
-    label = obj.label
-    if label == "bottle":
-        body_h, sh = obj.body_height, obj.shoulder_height
-        neck_top = body_h + sh + obj.neck_length
-        cap_top = neck_top + obj.cap_height
-        cap_r = obj.neck_r * (1.05 if obj.kind == "sports_bottle" else BOTTLE_CAP_WIDENING)
-        cylinder(names.WALL, r, 0.0, body_h, colour, shell * 0.75)
-        mesh(names.SHOULDER, colour, shell * 0.1, z=body_h)
-        cylinder(names.NECK, obj.neck_r, body_h + sh, neck_top, colour, shell * 0.05)
-        cylinder(names.CAP, cap_r, neck_top, cap_top, accent, shell * 0.05)
-        if obj.kind == "squeeze_bottle":  # the nozzle on the flip cap
-            cylinder(names.NOZZLE, 0.004, cap_top, h, accent, shell * 0.05)
-        elif obj.kind == "sports_bottle":  # a loop across the cap
-            loop_r, t = 0.6 * cap_r, 0.003
-            top = h - t
-            capsule(names.LOOP, [-loop_r, 0, cap_top], [-loop_r, 0, top], t, accent, 0.002, 0)
-            capsule(names.LOOP, [-loop_r, 0, top], [loop_r, 0, top], t, accent, 0.002, 1)
-            capsule(names.LOOP, [loop_r, 0, cap_top], [loop_r, 0, top], t, accent, 0.002, 2)
-        if obj.kind == "jug":
-            handle(0.35 * h, 0.68 * h, colour, shell * 0.05)
-    elif label == "cup":
-        if obj.kind == "mug":
-            mesh(names.SHELL, colour, shell * 0.85)
-            handle(0.25 * h, 0.75 * h, colour, shell * 0.15)
-        else:  # tumbler, clear cup: the tapered shell (its convex hull collides)
-            mesh(names.SHELL, colour, shell)
-    elif obj.kind in ("can", "can_stack"):
-        can_h = h / 2 if obj.kind == "can_stack" else h
-        for k in range(2 if obj.kind == "can_stack" else 1):
-            z = k * can_h
-            m = shell / (2 if obj.kind == "can_stack" else 1)
-            cylinder(names.RIM, 0.97 * r, z, z + 0.004, accent, 0.05 * m, k)
-            cylinder(names.WALL, r, z + 0.004, z + can_h - 0.004, colour, 0.9 * m, k)
-            cylinder(names.LID, 0.97 * r, z + can_h - 0.004, z + can_h, accent, 0.05 * m, k)
-    elif obj.kind == "canister":
-        cylinder(names.WALL, r, 0.0, h - 0.02, colour, 0.9 * shell)
-        cylinder(names.LID, r, h - 0.02, h, accent, 0.1 * shell)
-    elif obj.kind in ("box", "block"):
-        half = [obj.width / 2, obj.depth / 2, h / 2]
-        geom(names.BODY, GEOM.mjGEOM_BOX, half, [0.0, 0.0, h / 2], colour, shell)
-    elif obj.kind == "marker":  # lying along x: the barrel and a coloured cap at +x
-        mr, cap_len = obj.depth / 2, 0.035
-        barrel = obj.width - cap_len
-        along_x = _sigs(quat_wxyz(Rotation.from_euler("y", 90, degrees=True).as_matrix()))
-        x0 = -obj.width / 2
-        geom(names.BODY, GEOM.mjGEOM_CYLINDER, [mr, barrel / 2, 0.0], [x0 + barrel / 2, 0.0, mr],
-             colour, 0.7 * shell, quat=along_x)  # fmt: skip
-        geom(names.CAP, GEOM.mjGEOM_CYLINDER, [mr, cap_len / 2, 0.0],
-             [x0 + barrel + cap_len / 2, 0.0, mr], accent, 0.3 * shell, quat=along_x)  # fmt: skip
-    elif obj.kind == "fruit":
-        geom(names.BODY, GEOM.mjGEOM_SPHERE, [r, 0.0, 0.0], [0.0, 0.0, r], colour, shell)
-        cylinder(names.STEM, 0.002, 2 * r - 0.004, h, accent, 0.0005, contact=False)
-    elif obj.kind == "bowl":
-        mesh(names.SHELL, colour, shell)
-    else:  # pragma: no cover - scene.random_cluttered_object knows the same kinds
+
+def _bottle_parts(p: _Parts) -> tuple[float, float]:
+    """A bottle family's body, lathed shoulder, neck and cap; the cap's top and radius."""
+    obj, shell = p.obj, p.obj.shell_mass
+    body_h, sh = obj.body_height, obj.shoulder_height
+    neck_top = body_h + sh + obj.neck_length
+    cap_top = neck_top + obj.cap_height
+    cap_r = obj.neck_r * (1.05 if obj.kind == "sports_bottle" else BOTTLE_CAP_WIDENING)
+    p.cylinder(names.WALL, obj.radius, 0.0, body_h, p.colour, shell * 0.75)
+    p.mesh(names.SHOULDER, p.colour, shell * 0.1, z=body_h)
+    p.cylinder(names.NECK, obj.neck_r, body_h + sh, neck_top, p.colour, shell * 0.05)
+    p.cylinder(names.CAP, cap_r, neck_top, cap_top, p.accent, shell * 0.05)
+    return cap_top, cap_r
+
+
+def _bottle(p: _Parts) -> None:
+    _bottle_parts(p)
+
+
+def _squeeze_bottle(p: _Parts) -> None:
+    """A bottle with a nozzle on its flip cap."""
+    cap_top, _ = _bottle_parts(p)
+    p.cylinder(names.NOZZLE, 0.004, cap_top, p.obj.height, p.accent, p.obj.shell_mass * 0.05)
+
+
+def _sports_bottle(p: _Parts) -> None:
+    """A bottle with a loop across its cap."""
+    cap_top, cap_r = _bottle_parts(p)
+    loop_r, t = 0.6 * cap_r, 0.003
+    top = p.obj.height - t
+    p.capsule(names.LOOP, [-loop_r, 0, cap_top], [-loop_r, 0, top], t, p.accent, 0.002, 0)
+    p.capsule(names.LOOP, [-loop_r, 0, top], [loop_r, 0, top], t, p.accent, 0.002, 1)
+    p.capsule(names.LOOP, [loop_r, 0, cap_top], [loop_r, 0, top], t, p.accent, 0.002, 2)
+
+
+def _jug(p: _Parts) -> None:
+    """A bottle with a handle on its side."""
+    _bottle_parts(p)
+    h = p.obj.height
+    p.handle(0.35 * h, 0.68 * h, p.colour, p.obj.shell_mass * 0.05)
+
+
+def _mug(p: _Parts) -> None:
+    h, shell = p.obj.height, p.obj.shell_mass
+    p.mesh(names.SHELL, p.colour, shell * 0.85)
+    p.handle(0.25 * h, 0.75 * h, p.colour, shell * 0.15)
+
+
+def _shell(p: _Parts) -> None:
+    """Tumbler, clear cup, bowl: the lathed shell alone (its convex hull collides)."""
+    p.mesh(names.SHELL, p.colour, p.obj.shell_mass)
+
+
+def _cans(p: _Parts) -> None:
+    """A can (rim, labelled wall, lid), or two stacked for ``can_stack``."""
+    r, h, shell = p.obj.radius, p.obj.height, p.obj.shell_mass
+    count = 2 if p.obj.kind == "can_stack" else 1
+    can_h = h / 2 if count == 2 else h
+    for k in range(count):
+        z = k * can_h
+        m = shell / count
+        p.cylinder(names.RIM, 0.97 * r, z, z + 0.004, p.accent, 0.05 * m, k)
+        p.cylinder(names.WALL, r, z + 0.004, z + can_h - 0.004, p.colour, 0.9 * m, k)
+        p.cylinder(names.LID, 0.97 * r, z + can_h - 0.004, z + can_h, p.accent, 0.05 * m, k)
+
+
+def _canister(p: _Parts) -> None:
+    r, h, shell = p.obj.radius, p.obj.height, p.obj.shell_mass
+    p.cylinder(names.WALL, r, 0.0, h - 0.02, p.colour, 0.9 * shell)
+    p.cylinder(names.LID, r, h - 0.02, h, p.accent, 0.1 * shell)
+
+
+def _box(p: _Parts) -> None:
+    """Box and block: ``width`` x ``depth`` x ``height``."""
+    obj = p.obj
+    half = [obj.width / 2, obj.depth / 2, obj.height / 2]
+    p.geom(names.BODY, GEOM.mjGEOM_BOX, half, [0.0, 0.0, obj.height / 2], p.colour, obj.shell_mass)
+
+
+def _marker(p: _Parts) -> None:
+    """Lying along x: the barrel and a coloured cap at +x."""
+    obj, shell = p.obj, p.obj.shell_mass
+    mr, cap_len = obj.depth / 2, 0.035
+    barrel = obj.width - cap_len
+    along_x = _sigs(quat_wxyz(Rotation.from_euler("y", 90, degrees=True).as_matrix()))
+    x0 = -obj.width / 2
+    p.geom(names.BODY, GEOM.mjGEOM_CYLINDER, [mr, barrel / 2, 0.0], [x0 + barrel / 2, 0.0, mr],
+           p.colour, 0.7 * shell, quat=along_x)  # fmt: skip
+    p.geom(names.CAP, GEOM.mjGEOM_CYLINDER, [mr, cap_len / 2, 0.0],
+           [x0 + barrel + cap_len / 2, 0.0, mr], p.accent, 0.3 * shell, quat=along_x)  # fmt: skip
+
+
+def _fruit(p: _Parts) -> None:
+    r, h, shell = p.obj.radius, p.obj.height, p.obj.shell_mass
+    p.geom(names.BODY, GEOM.mjGEOM_SPHERE, [r, 0.0, 0.0], [0.0, 0.0, r], p.colour, shell)
+    p.cylinder(names.STEM, 0.002, 2 * r - 0.004, h, p.accent, 0.0005, contact=False)
+
+
+#: The geoms of each kind of the cluttered profile (the default profile's ``"bottle"`` and
+#: ``"cup"`` are built by :func:`_add_object`); the same kinds as
+#: :data:`armvision.sim.scene.CLUTTERED_SHAPES` but ``"cup"``.
+CLUTTERED_PARTS: dict[ObjectKind, Callable[[_Parts], None]] = {
+    "wine_bottle": _bottle,
+    "water_bottle": _bottle,
+    "soda_bottle": _bottle,
+    "tinted_bottle": _bottle,
+    "squeeze_bottle": _squeeze_bottle,
+    "jug": _jug,
+    "sports_bottle": _sports_bottle,
+    "mug": _mug,
+    "tumbler": _shell,
+    "clear_cup": _shell,
+    "can": _cans,
+    "can_stack": _cans,
+    "canister": _canister,
+    "box": _box,
+    "bowl": _shell,
+    "block": _box,
+    "marker": _marker,
+    "fruit": _fruit,
+}
+
+
+def _add_cluttered_object(spec: mujoco.MjSpec, obj: ObjectSpec) -> None:
+    """A free body for the cluttered profile's bottle and cup families and distractors.
+
+    Clear and tinted parts keep their colour's alpha (< 1), opaque ones alpha 1. Every part
+    that collides gets the objects' contact and friction; masses add up to the kind's shell
+    mass plus the liquid.
+    """
+    add_parts = CLUTTERED_PARTS.get(obj.kind)
+    if add_parts is None:  # pragma: no cover - scene.random_cluttered_object knows the same kinds
         raise SimulationError(f"internal: no model for object kind {obj.kind!r}")
+    T_world_obj = T_WORLD_BASE @ make_T(rot_z(obj.yaw), [obj.x, obj.y, 0.0])
+    body = spec.worldbody.add_body(name=obj.name, **_pose(T_world_obj))
+    body.add_freejoint(name=names.object_joint(obj.name))
+    parts = _Parts(body, obj)
+    add_parts(parts)
     if obj.liquid_height > 1e-4:
         lh = obj.liquid_height
-        cylinder(
+        parts.cylinder(
             names.LIQUID,
             obj.inner_radius - 0.0005,
             obj.inner_bottom,

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal, cast
+from typing import Literal, TypedDict, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -411,7 +412,10 @@ MATTE = (
 FRUIT = ((0.95, 0.5, 0.05, 1.0), (0.8, 0.1, 0.1, 1.0), (0.55, 0.75, 0.15, 1.0))
 
 
-def _pick(rng: np.random.Generator, options: tuple[tuple[float, float, float, float], ...]):
+Rgba = tuple[float, float, float, float]
+
+
+def _pick(rng: np.random.Generator, options: tuple[Rgba, ...]) -> Rgba:
     return options[int(rng.integers(len(options)))]
 
 
@@ -422,186 +426,294 @@ def object_kind(name: str) -> ObjectKind:
     return cast(ObjectKind, name)
 
 
+class _ShapeSize(TypedDict):
+    radius: float
+    height: float
+
+
+class Shape(_ShapeSize, total=False):
+    """The shape and colour fields of an :class:`ObjectSpec` a kind's builder draws (the
+    others keep their defaults)."""
+
+    colour: Rgba
+    shoulder: float
+    neck_length: float
+    neck_radius: float
+    cap_height: float
+    bottom_radius: float
+    width: float
+    depth: float
+    accent: Rgba
+
+
+#: Draws one kind's :class:`Shape` from the random stream.
+ShapeBuilder = Callable[[np.random.Generator], Shape]
+
+
+def _wine_bottle(rng: np.random.Generator) -> Shape:
+    """Tall neck, shoulder at 60-65 %."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.033, 0.037)),
+        height=float(u(0.28, 0.31)),
+        shoulder=float(u(0.60, 0.65)),
+        neck_length=float(u(0.05, 0.06)),
+        neck_radius=0.0135,
+        cap_height=0.025,
+        colour=CLEAR if u() < 0.5 else _pick(rng, TINTED_GLASS),
+        accent=(0.45, 0.05, 0.1, 1.0),
+    )
+
+
+def _water_bottle(rng: np.random.Generator) -> Shape:
+    """Short neck, shoulder at 75-80 %."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.03, 0.036)),
+        height=float(u(0.19, 0.24)),
+        shoulder=float(u(0.75, 0.80)),
+        neck_length=float(u(0.008, 0.014)),
+        neck_radius=0.013,
+        cap_height=0.016,
+        colour=CLEAR,
+        accent=(0.2, 0.4, 0.9, 1.0),
+    )
+
+
+def _soda_bottle(rng: np.random.Generator) -> Shape:
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.03, 0.036)),
+        height=float(u(0.2, 0.25)),
+        shoulder=float(u(0.62, 0.70)),
+        neck_length=float(u(0.018, 0.028)),
+        neck_radius=0.0125,
+        cap_height=0.016,
+        colour=(0.8, 0.95, 0.85, 0.3),
+        accent=(0.85, 0.1, 0.1, 1.0),
+    )
+
+
+def _tinted_bottle(rng: np.random.Generator) -> Shape:
+    """Coloured glass, beer-like."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.029, 0.033)),
+        height=float(u(0.22, 0.25)),
+        shoulder=float(u(0.58, 0.66)),
+        neck_length=float(u(0.04, 0.055)),
+        neck_radius=0.012,
+        cap_height=0.008,
+        colour=_pick(rng, TINTED_GLASS),
+        accent=METAL,
+    )
+
+
+def _squeeze_bottle(rng: np.random.Generator) -> Shape:
+    """Opaque, a flip cap with a nozzle on top."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.028, 0.035)),
+        height=float(u(0.18, 0.22)),
+        shoulder=float(u(0.68, 0.74)),
+        neck_length=0.008,
+        neck_radius=0.016,
+        cap_height=0.018,
+        colour=_pick(rng, OPAQUE_PLASTIC),
+        accent=(0.95, 0.95, 0.95, 1.0),
+    )
+
+
+def _jug(rng: np.random.Generator) -> Shape:
+    """Opaque, a handle on the side."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.033, 0.037)),
+        height=float(u(0.2, 0.24)),
+        shoulder=float(u(0.70, 0.75)),
+        neck_length=0.012,
+        neck_radius=0.014,
+        cap_height=0.018,
+        colour=(0.93, 0.93, 0.9, 1.0),
+        accent=_pick(rng, OPAQUE_PLASTIC),
+    )
+
+
+def _sports_bottle(rng: np.random.Generator) -> Shape:
+    """Opaque, a wide cap with a carrying loop."""
+    u = rng.uniform
+    r = float(u(0.032, 0.037))
+    return Shape(
+        radius=r,
+        height=float(u(0.21, 0.25)),
+        shoulder=float(u(0.75, 0.79)),
+        neck_length=0.006,
+        neck_radius=0.7 * r,
+        cap_height=0.02,
+        colour=_pick(rng, OPAQUE_PLASTIC),
+        accent=(0.15, 0.15, 0.15, 1.0),
+    )
+
+
+def _cup(rng: np.random.Generator) -> Shape:
+    """Plain cup, as in the default profile."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.03, 0.037)), height=float(u(0.08, 0.11)), colour=_pick(rng, CUP_COLOURS)
+    )
+
+
+def _mug(rng: np.random.Generator) -> Shape:
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.03, 0.036)),
+        height=float(u(0.085, 0.1)),
+        colour=_pick(rng, CUP_COLOURS + MATTE),
+    )
+
+
+def _tumbler(rng: np.random.Generator) -> Shape:
+    """Thick glass, slightly wider at the top."""
+    u = rng.uniform
+    r = float(u(0.032, 0.037))
+    return Shape(radius=r, height=float(u(0.09, 0.12)), bottom_radius=0.85 * r, colour=CLEAR)
+
+
+def _clear_cup(rng: np.random.Generator) -> Shape:
+    """Thin clear plastic, tapered."""
+    u = rng.uniform
+    r = float(u(0.034, 0.037))
+    return Shape(
+        radius=r, height=float(u(0.09, 0.11)), bottom_radius=0.7 * r, colour=(0.9, 0.95, 1.0, 0.2)
+    )
+
+
+def _can(rng: np.random.Generator) -> Shape:
+    """Food can: closed flat top, printed label."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.033, 0.042)),
+        height=float(u(0.09, 0.125)),
+        colour=_pick(rng, CAN_LABELS),
+        accent=METAL,
+    )
+
+
+def _can_stack(rng: np.random.Generator) -> Shape:
+    """Two equal cans, one on the other."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.033, 0.04)),
+        height=2 * float(u(0.08, 0.11)),
+        colour=_pick(rng, CAN_LABELS),
+        accent=METAL,
+    )
+
+
+def _canister(rng: np.random.Generator) -> Shape:
+    """Tall canister of wipes, a lid on top."""
+    u = rng.uniform
+    return Shape(
+        radius=float(u(0.04, 0.048)),
+        height=float(u(0.17, 0.2)),
+        colour=_pick(rng, OPAQUE_PLASTIC),
+        accent=_pick(rng, OPAQUE_PLASTIC),
+    )
+
+
+def _box(rng: np.random.Generator) -> Shape:
+    u = rng.uniform
+    w, d = float(u(0.05, 0.1)), float(u(0.04, 0.07))
+    return Shape(
+        radius=0.5 * math.hypot(w, d),
+        height=float(u(0.05, 0.15)),
+        width=w,
+        depth=d,
+        colour=_pick(rng, MATTE + OPAQUE_PLASTIC),
+    )
+
+
+def _bowl(rng: np.random.Generator) -> Shape:
+    u = rng.uniform
+    r = float(u(0.055, 0.075))
+    return Shape(
+        radius=r,
+        height=float(u(0.045, 0.065)),
+        bottom_radius=0.5 * r,
+        colour=_pick(rng, CUP_COLOURS + MATTE),
+    )
+
+
+def _block(rng: np.random.Generator) -> Shape:
+    """Toy cube."""
+    a = float(rng.uniform(0.03, 0.05))
+    return Shape(
+        radius=a / math.sqrt(2.0), height=a, width=a, depth=a, colour=_pick(rng, OPAQUE_PLASTIC)
+    )
+
+
+def _marker(rng: np.random.Generator) -> Shape:
+    """Lying on its side along x."""
+    u = rng.uniform
+    r, length = float(u(0.0065, 0.009)), float(u(0.12, 0.14))
+    return Shape(
+        radius=0.5 * math.hypot(length, 2 * r),
+        height=2 * r,
+        width=length,
+        depth=2 * r,
+        colour=(0.95, 0.95, 0.95, 1.0),
+        accent=_pick(rng, OPAQUE_PLASTIC),
+    )
+
+
+def _fruit(rng: np.random.Generator) -> Shape:
+    """A sphere, a short stem on top."""
+    r = float(rng.uniform(0.03, 0.042))
+    return Shape(
+        radius=r, height=2 * r + FRUIT_STEM, colour=_pick(rng, FRUIT), accent=(0.3, 0.2, 0.1, 1.0)
+    )
+
+
+#: The kinds :func:`random_cluttered_object` draws, each with its shape's builder (the plain
+#: ``"bottle"`` is the default profile's alone, :func:`random_object`).
+CLUTTERED_SHAPES: dict[ObjectKind, ShapeBuilder] = {
+    "wine_bottle": _wine_bottle,
+    "water_bottle": _water_bottle,
+    "soda_bottle": _soda_bottle,
+    "tinted_bottle": _tinted_bottle,
+    "squeeze_bottle": _squeeze_bottle,
+    "jug": _jug,
+    "sports_bottle": _sports_bottle,
+    "cup": _cup,
+    "mug": _mug,
+    "tumbler": _tumbler,
+    "clear_cup": _clear_cup,
+    "can": _can,
+    "can_stack": _can_stack,
+    "canister": _canister,
+    "box": _box,
+    "bowl": _bowl,
+    "block": _block,
+    "marker": _marker,
+    "fruit": _fruit,
+}
+
+
 def random_cluttered_object(rng: np.random.Generator, name: str, kind: str) -> ObjectSpec:
     """An object of ``kind`` (a bottle or cup family or a distractor) with random size and,
     for containers, fill and liquid; not yet placed. Bottles and cups stay below 0.038 m
     in radius so the open gripper fits around them."""
     known = object_kind(kind)
-    u = rng.uniform
-
-    def container(**kw: Any) -> ObjectSpec:
-        liquid = str(rng.choice(list(LIQUID_COLOURS)))
-        return ObjectSpec(name, known, fill=float(u(0.1, 0.9)), liquid=liquid, x=0.0, y=0.0, **kw)
-
-    def other(**kw: Any) -> ObjectSpec:
-        return ObjectSpec(name, known, fill=0.0, liquid="water", x=0.0, y=0.0, **kw)
-
-    f = float
-    if kind == "wine_bottle":  # tall neck, shoulder at 60-65 %
-        return container(
-            radius=f(u(0.033, 0.037)),
-            height=f(u(0.28, 0.31)),
-            shoulder=f(u(0.60, 0.65)),
-            neck_length=f(u(0.05, 0.06)),
-            neck_radius=0.0135,
-            cap_height=0.025,
-            colour=CLEAR if u() < 0.5 else _pick(rng, TINTED_GLASS),
-            accent=(0.45, 0.05, 0.1, 1.0),
-        )
-    if kind == "water_bottle":  # short neck, shoulder at 75-80 %
-        return container(
-            radius=f(u(0.03, 0.036)),
-            height=f(u(0.19, 0.24)),
-            shoulder=f(u(0.75, 0.80)),
-            neck_length=f(u(0.008, 0.014)),
-            neck_radius=0.013,
-            cap_height=0.016,
-            colour=CLEAR,
-            accent=(0.2, 0.4, 0.9, 1.0),
-        )
-    if kind == "soda_bottle":
-        return container(
-            radius=f(u(0.03, 0.036)),
-            height=f(u(0.2, 0.25)),
-            shoulder=f(u(0.62, 0.70)),
-            neck_length=f(u(0.018, 0.028)),
-            neck_radius=0.0125,
-            cap_height=0.016,
-            colour=(0.8, 0.95, 0.85, 0.3),
-            accent=(0.85, 0.1, 0.1, 1.0),
-        )
-    if kind == "tinted_bottle":  # coloured glass, beer-like
-        return container(
-            radius=f(u(0.029, 0.033)),
-            height=f(u(0.22, 0.25)),
-            shoulder=f(u(0.58, 0.66)),
-            neck_length=f(u(0.04, 0.055)),
-            neck_radius=0.012,
-            cap_height=0.008,
-            colour=_pick(rng, TINTED_GLASS),
-            accent=METAL,
-        )
-    if kind == "squeeze_bottle":  # opaque, a flip cap with a nozzle on top
-        return container(
-            radius=f(u(0.028, 0.035)),
-            height=f(u(0.18, 0.22)),
-            shoulder=f(u(0.68, 0.74)),
-            neck_length=0.008,
-            neck_radius=0.016,
-            cap_height=0.018,
-            colour=_pick(rng, OPAQUE_PLASTIC),
-            accent=(0.95, 0.95, 0.95, 1.0),
-        )
-    if kind == "jug":  # opaque, a handle on the side
-        return container(
-            radius=f(u(0.033, 0.037)),
-            height=f(u(0.2, 0.24)),
-            shoulder=f(u(0.70, 0.75)),
-            neck_length=0.012,
-            neck_radius=0.014,
-            cap_height=0.018,
-            colour=(0.93, 0.93, 0.9, 1.0),
-            accent=_pick(rng, OPAQUE_PLASTIC),
-        )
-    if kind == "sports_bottle":  # opaque, a wide cap with a carrying loop
-        r = f(u(0.032, 0.037))
-        return container(
-            radius=r,
-            height=f(u(0.21, 0.25)),
-            shoulder=f(u(0.75, 0.79)),
-            neck_length=0.006,
-            neck_radius=0.7 * r,
-            cap_height=0.02,
-            colour=_pick(rng, OPAQUE_PLASTIC),
-            accent=(0.15, 0.15, 0.15, 1.0),
-        )
-    if kind == "cup":  # plain cup, as in the default profile
-        return container(
-            radius=f(u(0.03, 0.037)), height=f(u(0.08, 0.11)), colour=_pick(rng, CUP_COLOURS)
-        )
-    if kind == "mug":
-        return container(
-            radius=f(u(0.03, 0.036)),
-            height=f(u(0.085, 0.1)),
-            colour=_pick(rng, CUP_COLOURS + MATTE),
-        )
-    if kind == "tumbler":  # thick glass, slightly wider at the top
-        r = f(u(0.032, 0.037))
-        return container(radius=r, height=f(u(0.09, 0.12)), bottom_radius=0.85 * r, colour=CLEAR)
-    if kind == "clear_cup":  # thin clear plastic, tapered
-        r = f(u(0.034, 0.037))
-        return container(
-            radius=r,
-            height=f(u(0.09, 0.11)),
-            bottom_radius=0.7 * r,
-            colour=(0.9, 0.95, 1.0, 0.2),
-        )
-    if kind == "can":  # food can: closed flat top, printed label
-        return other(
-            radius=f(u(0.033, 0.042)),
-            height=f(u(0.09, 0.125)),
-            colour=_pick(rng, CAN_LABELS),
-            accent=METAL,
-        )
-    if kind == "can_stack":  # two equal cans, one on the other
-        return other(
-            radius=f(u(0.033, 0.04)),
-            height=2 * f(u(0.08, 0.11)),
-            colour=_pick(rng, CAN_LABELS),
-            accent=METAL,
-        )
-    if kind == "canister":  # tall canister of wipes, a lid on top
-        return other(
-            radius=f(u(0.04, 0.048)),
-            height=f(u(0.17, 0.2)),
-            colour=_pick(rng, OPAQUE_PLASTIC),
-            accent=_pick(rng, OPAQUE_PLASTIC),
-        )
-    if kind == "box":
-        w, d = f(u(0.05, 0.1)), f(u(0.04, 0.07))
-        return other(
-            radius=0.5 * math.hypot(w, d),
-            height=f(u(0.05, 0.15)),
-            width=w,
-            depth=d,
-            colour=_pick(rng, MATTE + OPAQUE_PLASTIC),
-        )
-    if kind == "bowl":
-        r = f(u(0.055, 0.075))
-        return other(
-            radius=r,
-            height=f(u(0.045, 0.065)),
-            bottom_radius=0.5 * r,
-            colour=_pick(rng, CUP_COLOURS + MATTE),
-        )
-    if kind == "block":  # toy cube
-        a = f(u(0.03, 0.05))
-        return other(
-            radius=a / math.sqrt(2.0),
-            height=a,
-            width=a,
-            depth=a,
-            colour=_pick(rng, OPAQUE_PLASTIC),
-        )
-    if kind == "marker":  # lying on its side along x
-        r, length = f(u(0.0065, 0.009)), f(u(0.12, 0.14))
-        return other(
-            radius=0.5 * math.hypot(length, 2 * r),
-            height=2 * r,
-            width=length,
-            depth=2 * r,
-            colour=(0.95, 0.95, 0.95, 1.0),
-            accent=_pick(rng, OPAQUE_PLASTIC),
-        )
-    if kind == "fruit":  # a sphere, a short stem on top
-        r = f(u(0.03, 0.042))
-        return other(
-            radius=r,
-            height=2 * r + FRUIT_STEM,
-            colour=_pick(rng, FRUIT),
-            accent=(0.3, 0.2, 0.1, 1.0),
-        )
-    raise SimulationError(f"no object kind {kind!r}; kinds: {sorted(KINDS)}")
+    builder = CLUTTERED_SHAPES.get(known)
+    if builder is None:
+        raise SimulationError(f"no object kind {kind!r}; kinds: {sorted(KINDS)}")
+    shape = builder(rng)
+    if KINDS[known].label == "other":  # a distractor: empty
+        return ObjectSpec(name, known, fill=0.0, liquid="water", x=0.0, y=0.0, **shape)
+    liquid = str(rng.choice(list(LIQUID_COLOURS)))
+    return ObjectSpec(
+        name, known, fill=float(rng.uniform(0.1, 0.9)), liquid=liquid, x=0.0, y=0.0, **shape
+    )
 
 
 @dataclass(frozen=True)
