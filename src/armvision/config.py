@@ -566,6 +566,39 @@ class AnalyzeConfig:
     timeout_s: Annotated[Float, Field(gt=0.0, le=3600.0)] = 60.0
 
 
+@dataclass(config=_STRICT)
+class PerceptionConfig:
+    """Which object detector finds the bottles and cups (armvision.perception.factory).
+
+    ``detector``: ``geometric`` (depth alone, no weights), ``onnx`` (the ONNX model ``model``
+    run by ONNX Runtime: an SSD-MobileNet-v2 or a YOLOv8/YOLO11 export), ``jetson``
+    (jetson-inference's detectNet on a Jetson; ``model`` is its network name or model file,
+    default ssd-mobilenet-v2) or ``hybrid`` (the ONNX model names the objects, the geometric
+    fit places and sizes them; objects the network does not name are reported as "other").
+    ``labels``: a labels.txt (one class name a line, line = class id) naming bottle and cup;
+    without it COCO's ids per model kind (SSD with background: bottle 44, cup 47; YOLO: 39,
+    41). Network boxes scoring below ``score_threshold`` are dropped, then duplicates
+    overlapping more than ``nms_iou`` (ONNX).
+    """
+
+    detector: Literal["geometric", "onnx", "jetson", "hybrid"] = "geometric"
+    # validate_default: checked against the detector when only that is set.
+    model: Annotated[Text | None, Field(validate_default=True)] = None
+    labels: Text | None = None
+    score_threshold: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
+    nms_iou: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.45
+
+    @field_validator("model")
+    @classmethod
+    def _model_needed(cls, model: str | None, info: ValidationInfo) -> str | None:
+        detector = info.data.get("detector")
+        if model is None and detector in ("onnx", "hybrid"):
+            raise ValueError(
+                f'detector {detector!r} needs an ONNX model file (perception.model = "PATH")'
+            )
+        return model
+
+
 def _token_text(token: str) -> str:
     if any(c.isspace() for c in token):
         raise ValueError("must not hold spaces or other whitespace")
@@ -619,6 +652,7 @@ class Config:
     grab: GrabConfig = dataclasses.field(default_factory=GrabConfig)
     follow: FollowConfig = dataclasses.field(default_factory=FollowConfig)
     analyze: AnalyzeConfig = dataclasses.field(default_factory=AnalyzeConfig)
+    perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
     ui: UIConfig = dataclasses.field(default_factory=UIConfig)
 
 

@@ -108,8 +108,17 @@ def check_interbotix() -> BackendStatus:
     return BackendStatus("interbotix", usable, detail)
 
 
+def check_object_detector(config: Config) -> BackendStatus:
+    """Which object detector the configuration chooses, and whether it can be built here."""
+    from armvision.perception.factory import describe_detector
+
+    usable, detail = describe_detector(config.perception)
+    return BackendStatus("objects", usable, detail)
+
+
 def cmd_info(args: argparse.Namespace, config: Config) -> int:
     statuses = [check_mujoco(), check_realsense(), check_interbotix()]
+    objects = check_object_detector(config)
     config_file = find_config_file(args.config)
     report = {
         "version": __version__,
@@ -117,6 +126,7 @@ def cmd_info(args: argparse.Namespace, config: Config) -> int:
         "platform": f"{platform.system()} {platform.machine()}",
         "config": str(config_file) if config_file else "defaults",
         "backends": [asdict(s) for s in statuses],
+        "objects": asdict(objects),
     }
     if args.json:
         print(json.dumps(report, indent=2))
@@ -126,6 +136,7 @@ def cmd_info(args: argparse.Namespace, config: Config) -> int:
     width = max(len(s.name) for s in statuses)
     for s in statuses:
         print(f"  {s.name:<{width}}  {'yes' if s.usable else 'no ':<3}  {s.detail}")
+    print(f"objects: {objects.detail}")
     return 0
 
 

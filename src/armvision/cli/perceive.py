@@ -43,12 +43,14 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
 
     from armvision.perception.annotate import annotate
     from armvision.perception.detection import FrameContext
-    from armvision.perception.geometric import GeometricDetector
+    from armvision.perception.factory import object_detector
     from armvision.perception.liquid import ContainerGeometry, LiquidLevelMeter
     from armvision.perception.tags import TagDetector
 
     tags = TagDetector.from_config(config.tag).detect(frame)
-    detections = GeometricDetector().detect(frame, FrameContext(T_base_cam, joint_positions))
+    detections = object_detector(config.perception).detect(
+        frame, FrameContext(T_base_cam, joint_positions)
+    )
     meter = LiquidLevelMeter()
     levels = [
         meter.measure(frame, d.box, ContainerGeometry(tuple(d.center_cam), d.radius, d.height))

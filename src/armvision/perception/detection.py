@@ -1,12 +1,15 @@
 """The bottle and cup record every object detector returns, the protocol they share and what
 they are told about each frame besides its pixels.
 
-Three detectors implement :class:`ObjectDetector`:
+Four detectors implement :class:`ObjectDetector`:
 :class:`~armvision.perception.geometric.GeometricDetector` (depth alone, no weights),
-:class:`~armvision.perception.learned.OnnxDetector` (an ONNX model through ONNX Runtime) and
-:class:`~armvision.perception.jetson.JetsonDetector` (jetson-inference's ``detectNet``). Each
-is called as ``detector.detect(frame, FrameContext(T_base_cam=..., joint_positions=...))``;
-the learned detectors ignore the context.
+:class:`~armvision.perception.learned.OnnxDetector` (an ONNX model through ONNX Runtime),
+:class:`~armvision.perception.jetson.JetsonDetector` (jetson-inference's ``detectNet``) and
+:class:`~armvision.perception.hybrid.HybridDetector` (a network's labels, the geometric fit's
+3-D); :func:`~armvision.perception.factory.object_detector` builds the one the configuration
+chooses. Each is called as
+``detector.detect(frame, FrameContext(T_base_cam=..., joint_positions=...))``; the learned
+detectors ignore the context.
 
 Frames: ``cam`` is the colour optical frame (x right, y down, z forward); ``base`` the robot's
 base_link; ``T_base_cam`` the camera pose (the calibration).
@@ -24,7 +27,11 @@ from numpy.typing import NDArray
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject
 
 Array = NDArray[np.float64]
-Label = Literal["bottle", "cup"]
+#: What a detection is: a bottle, a cup, or (:class:`~armvision.perception.hybrid.HybridDetector`
+#: only) ``"other"``, an object the geometric fit found but the network did not name. The
+#: runtime and the tasks act on bottles and cups only; other tracks are obstacles.
+Label = Literal["bottle", "cup", "other"]
+#: The classes a detector looks for (a network's class map names these).
 LABELS: tuple[Label, ...] = ("bottle", "cup")
 
 #: Prior share of a bottle's height taken by its body (below the shoulder); the simulated

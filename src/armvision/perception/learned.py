@@ -40,6 +40,12 @@ Array = NDArray[np.float64]
 COCO91_CLASS_IDS: dict[Label, int] = {"bottle": 44, "cup": 47}
 YOLO_CLASS_IDS: dict[Label, int] = {"bottle": 39, "cup": 41}
 
+#: The output layouts :class:`OnnxDetector` reads, for error messages.
+ONNX_LAYOUTS = (
+    "SSD-MobileNet-v2 exports (outputs boxes (1, N, 4), classes and scores (1, N), optionally "
+    "a count (1,)) or YOLOv8/YOLO11 exports (one output (1, 4 + C, N))"
+)
+
 
 def read_labels(path: str | os.PathLike[str]) -> list[str]:
     """Class names, one per line (line number = class id), as jetson-inference's labels.txt."""
@@ -150,6 +156,10 @@ def nms(
     return np.asarray(kept, dtype=np.intp).ravel()
 
 
+def _shape_text(shape: Sequence[object] | None) -> str:
+    return "(" + ", ".join(str(d) if d is not None else "?" for d in (shape or [])) + ")"
+
+
 class OnnxDetector:
     """Bottles and cups from an ONNX object detector run by ONNX Runtime.
 
@@ -189,14 +199,19 @@ class OnnxDetector:
                 "CUDA machines), or use GeometricDetector, which needs no weights"
             ) from None
         if not Path(model_path).is_file():
-            raise PerceptionError(f"ONNX model {model_path} does not exist")
+            raise PerceptionError(
+                f"ONNX model {model_path} does not exist; export one of {ONNX_LAYOUTS}"
+            )
         try:
             self.session = onnxruntime.InferenceSession(
                 str(model_path),
                 providers=list(providers) if providers else onnxruntime.get_available_providers(),
             )
         except Exception as exc:  # onnxruntime raises its own Fail/InvalidGraph types
-            raise PerceptionError(f"ONNX Runtime cannot load {model_path}: {exc}") from exc
+            why = " ".join(str(exc).split())[:300]
+            raise PerceptionError(
+                f"ONNX Runtime cannot load {model_path} ({why}); supported: {ONNX_LAYOUTS}"
+            ) from exc
         self.input = self.session.get_inputs()[0]
         self.output_names = [o.name for o in self.session.get_outputs()]
         if kind is None:
@@ -204,6 +219,7 @@ class OnnxDetector:
         if kind not in ("ssd", "yolov8"):
             raise PerceptionError(f"kind must be 'ssd' or 'yolov8', not {kind!r}")
         self.kind = kind
+        self.model_path = str(model_path)
         if class_ids is None and labels_path is not None:
             labels = read_labels(labels_path)
             class_ids = class_ids_from_labels(labels)
@@ -213,6 +229,7 @@ class OnnxDetector:
         if unknown:
             raise PerceptionError(f"class_ids may name only {LABELS}, not {sorted(unknown)}")
         self.class_ids = dict(class_ids)
+        self._check_layout()
         self.threshold = float(threshold)
         self.nms_iou = float(nms_iou)
         self.ssd_box_order = ssd_box_order
@@ -227,16 +244,73 @@ class OnnxDetector:
         h, w = (d if isinstance(d, int) and d > 0 else None for d in dims)
         return channels_first, (w, h)
 
-    def _ssd_outputs(self, outputs: list[Array]) -> tuple[Array, Array, Array, Array]:
-        by_name: dict[str, Array] = {}
-        for name, value in zip(self.output_names, outputs):
+    def _ssd_roles(self) -> dict[str, int]:
+        """Output index of each SSD role (box, class, score, num), by name, else the TF
+        export's order; an empty dict when the outputs cannot be an SSD export's."""
+        roles: dict[str, int] = {}
+        for i, name in enumerate(self.output_names):
             key = name.lower()
             for role in ("box", "class", "score", "num"):
-                if role in key and role not in by_name:
-                    by_name[role] = value
-        if len(by_name) < 4:  # unnamed outputs: the TF export's order
-            by_name = dict(zip(("box", "class", "score", "num"), outputs))
-        return by_name["box"], by_name["class"], by_name["score"], by_name["num"]
+                if role in key and role not in roles:
+                    roles[role] = i
+        if all(r in roles for r in ("box", "class", "score")):
+            return roles
+        if len(self.output_names) == 4:  # unnamed outputs: the TF export's order
+            return {"box": 0, "class": 1, "score": 2, "num": 3}
+        return {}
+
+    def _check_layout(self) -> None:
+        """The model's outputs are one of :data:`ONNX_LAYOUTS`, else a one-line PerceptionError
+        naming the file (dimensions the export leaves symbolic are not checked)."""
+        outputs = self.session.get_outputs()
+
+        def dims(i: int) -> list[int | None]:
+            shape = outputs[i].shape
+            return [d if isinstance(d, int) and d > 0 else None for d in (shape or [])]
+
+        def fits(shape: list[int | None], want: list[int | None]) -> bool:
+            return len(shape) == len(want) and all(
+                w is None or d is None or d == w for d, w in zip(shape, want)
+            )
+
+        problem = None
+        if self.kind == "yolov8":
+            if len(outputs) != 1:
+                problem = f"{len(outputs)} outputs, a YOLO export has one"
+            else:
+                shape = dims(0)
+                channels = shape[1] if len(shape) == 3 else None
+                need = 5 + max(self.class_ids.values())
+                if not fits(shape, [1, None, None]) or (channels is not None and channels < need):
+                    problem = (
+                        f"output {outputs[0].name} of shape {_shape_text(outputs[0].shape)}, "
+                        f"not (1, 4 + C, N) with at least {need} rows"
+                    )
+        else:
+            roles = self._ssd_roles()
+            if not roles:
+                names = ", ".join(self.output_names)
+                problem = f"outputs {names}: no boxes, classes and scores"
+            else:
+                box, cls, score = (dims(roles[r]) for r in ("box", "class", "score"))
+                if not fits(box, [1, None, 4]):
+                    problem = f"boxes of shape {_shape_text(outputs[roles['box']].shape)}"
+                elif not (fits(cls, [1, box[1]]) and fits(score, [1, box[1]])):
+                    problem = (
+                        f"classes {_shape_text(outputs[roles['class']].shape)} and scores "
+                        f"{_shape_text(outputs[roles['score']].shape)} do not match boxes "
+                        f"{_shape_text(outputs[roles['box']].shape)}"
+                    )
+        if problem is not None:
+            raise PerceptionError(
+                f"ONNX model {self.model_path} is not a detector armvision reads ({problem}); "
+                f"supported: {ONNX_LAYOUTS}"
+            )
+
+    def _ssd_outputs(self, outputs: list[Array]) -> tuple[Array, Array, Array, Array]:
+        roles = self._ssd_roles()
+        num = outputs[roles["num"]] if "num" in roles else np.zeros(0)
+        return outputs[roles["box"]], outputs[roles["class"]], outputs[roles["score"]], num
 
     def detect(self, frame: RGBDFrame, context: FrameContext = NO_CONTEXT) -> list[Detection]:
         """Bottles and cups in ``frame`` (colour for the network, depth for the 3-D centre);

@@ -55,7 +55,7 @@ from armvision.fusion.drift import DriftMonitor
 from armvision.fusion.kalman import DEFAULT_FOCAL_PX
 from armvision.fusion.loop import FusionLoop
 from armvision.perception.detection import FrameContext, ObjectDetector
-from armvision.perception.geometric import GeometricDetector
+from armvision.perception.factory import object_detector as configured_object_detector
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel, LiquidLevelMeter
 from armvision.perception.tags import TagDetector
 from armvision.robot.base import Arm
@@ -106,7 +106,8 @@ class System:
     ``calibration``: the camera pose and joint offsets to start from. ``clock``: seconds on
     the camera's time base (simulation time for a simulation). ``world``: the simulation, if
     this is one: ``lockstep`` advances its clock, reports compare with its truth. Detectors
-    default to the configured tag detector, the geometric object detector and the liquid
+    default to the configured tag detector, the configured object detector
+    (``[perception]``, :func:`~armvision.perception.factory.object_detector`) and the liquid
     meter. ``owns``: what :meth:`close` releases.
     Use as a context manager: :meth:`start`, :meth:`close`.
     """
@@ -139,7 +140,9 @@ class System:
         self.calibration = calibration
         self.T_ee_tag = tag_mount(config.tag.offset_ee)
         self.tag_detector = tag_detector or TagDetector.from_config(config.tag)
-        self.object_detector: ObjectDetector = object_detector or GeometricDetector()
+        self.object_detector: ObjectDetector = object_detector or configured_object_detector(
+            config.perception
+        )
         self.liquid_meter = liquid_meter or LiquidLevelMeter()
         self.encoders = _CorrectedEncoders(arm, calibration.joint_offsets_rad)
         self.fusion = self._fusion_loop()

@@ -1,0 +1,111 @@
+"""A network names the objects, the geometric fit places them: :class:`HybridDetector`.
+
+A learned detector's box says *what* an object is but places it only roughly (a depth
+percentile in the box's centre); the geometric detector fits the cylinder that stands on the
+table (centre, radius, height, axis) but tells a bottle from a cup by shape alone. The hybrid
+runs both on the same frame and context and pairs them:
+
+- each network box takes the geometric detection whose box overlaps it best, with an IoU of at
+  least ``min_iou`` (0.3), or else whose 3-D centre projects inside the box; each geometric
+  detection goes to one box at most (best overlaps first). The pair is reported with the
+  network's label and score and the geometric box, centre, size, radius, height and axis;
+- a network box no geometric detection fits is reported as the network gave it (its 3-D
+  centre from the depth in the box, :func:`~armvision.perception.detection.box_center_3d`);
+- a geometric detection no box matched is reported with the label ``"other"`` (something
+  stands there: the tasks do not pick it, but a grasp keeps clear of it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from armvision.camera.frames import RGBDFrame, project
+from armvision.perception.detection import (
+    NO_CONTEXT,
+    Detection,
+    FrameContext,
+    ObjectDetector,
+)
+
+Box = tuple[float, float, float, float]
+
+
+def box_iou(a: Box, b: Box) -> float:
+    """Intersection over union of two (x0, y0, x1, y1) boxes."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0.0 or h <= 0.0:
+        return 0.0
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0.0 else 0.0
+
+
+class HybridDetector:
+    """Labels and scores from ``network``, 3-D from ``geometric`` (see the module docstring).
+
+    ``network`` and ``geometric`` are any :class:`ObjectDetector`; in practice an
+    :class:`~armvision.perception.learned.OnnxDetector` and a
+    :class:`~armvision.perception.geometric.GeometricDetector`. The context (camera pose,
+    joints) goes to both: the geometric detector needs it for the table and the self-mask.
+    """
+
+    def __init__(
+        self, network: ObjectDetector, geometric: ObjectDetector, *, min_iou: float = 0.3
+    ) -> None:
+        self.network = network
+        self.geometric = geometric
+        self.min_iou = float(min_iou)
+
+    def detect(self, frame: RGBDFrame, context: FrameContext = NO_CONTEXT) -> list[Detection]:
+        """The network's objects placed by the geometric fit, then the unnamed ones."""
+        named = self.network.detect(frame, context)
+        fitted = self.geometric.detect(frame, context)
+        pairs: list[tuple[float, int, int]] = []
+        for i, net in enumerate(named):
+            x0, y0, x1, y1 = net.box
+            for j, geo in enumerate(fitted):
+                iou = box_iou(net.box, geo.box)
+                u, v = project(frame.intrinsics, np.asarray(geo.center_cam, float)[None])[0]
+                inside = bool(x0 <= u <= x1 and y0 <= v <= y1)
+                if iou >= self.min_iou or inside:
+                    pairs.append((iou, i, j))
+        match: dict[int, int] = {}
+        taken: set[int] = set()
+        for _, i, j in sorted(pairs, key=lambda p: (-p[0], p[1], p[2])):
+            if i not in match and j not in taken:
+                match[i] = j
+                taken.add(j)
+        out: list[Detection] = []
+        for i, net in enumerate(named):
+            if i not in match:
+                out.append(net)
+                continue
+            geo = fitted[match[i]]
+            out.append(
+                Detection(
+                    label=net.label,
+                    score=float(net.score),
+                    box=geo.box,
+                    center_cam=geo.center_cam,
+                    size=geo.size,
+                    radius=geo.radius,
+                    height=geo.height,
+                    axis_cam=geo.axis_cam,
+                )
+            )
+        for j, geo in enumerate(fitted):
+            if j not in taken:
+                out.append(
+                    Detection(
+                        label="other",
+                        score=float(geo.score),
+                        box=geo.box,
+                        center_cam=geo.center_cam,
+                        size=geo.size,
+                        radius=geo.radius,
+                        height=geo.height,
+                        axis_cam=geo.axis_cam,
+                    )
+                )
+        return out
