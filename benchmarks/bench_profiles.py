@@ -69,9 +69,10 @@ def main(argv: list[str]) -> int:
             cells = [_show(fmt, c.get(key)) for c in columns.values()]
         print(f"{title:38}" + "".join(f"{cell:>12}" for cell in cells))
     kinds = columns["cluttered"]["found_by_kind"]
-    print("\ncluttered: visible objects of each kind matched by a bottle/cup detection")
+    print("\ncluttered: visible objects of each kind matched by any detection, by a bottle/cup")
     for kind, row in kinds.items():
-        print(f"  {kind:16} {row['found']:>3} / {row['visible']:<3} {_show('{:.0%}', row['rate'])}")
+        rate = _show("{:.0%}", row["rate"])
+        print(f"  {kind:16} {row['found']:>3} / {row['visible']:<3} {rate:>5}  {row['called']:>3}")
     families = columns["cluttered"]["by_family"]
     print("\ncluttered: liquid MAE per bottle family (points)")
     for kind, row in families.items():

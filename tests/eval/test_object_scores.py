@@ -1,5 +1,5 @@
 """The object evaluation's tallies on a hand-worked scene: per-label recall and precision, the
-distractor rate, and false positives."""
+distractor rate, and false positives; a detection labelled "other" is never a call."""
 
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ def test_a_hand_worked_cluttered_scene() -> None:
     assert math.isclose(s["object_precision_bottle"], 1 / 3)  # b1 right; the can, nothing
     assert s["object_precision_cup"] == 0.5  # c1 right, b2 wrong
     assert s["distractor_rate"] == 0.5 and s["distractors_visible"] == 2
-    assert s["found_by_kind"]["can"] == {"visible": 1, "found": 1, "rate": 1.0}
+    assert s["found_by_kind"]["can"] == {"visible": 1, "found": 1, "called": 1, "rate": 1.0}
     assert s["found_by_kind"]["bowl"]["found"] == 0
     assert s["object_label_accuracy"] == 3 / 4  # of the 4 matched bottles and cups
     assert math.isclose(s["object_center_error_mm_median"], 1.0)
@@ -79,3 +79,32 @@ def test_a_scene_without_distractors_counts_as_before() -> None:
     assert s["object_recall"] == 0.5 and s["object_false_positives"] == 1
     assert s["object_recall_cup"] == 0.0 and s["object_precision_bottle"] == 0.5
     assert math.isnan(s["distractor_rate"])
+
+
+def test_other_labels_are_right_on_distractors_and_misses_on_containers() -> None:
+    objects = [
+        _obj("b1", "wine_bottle", "bottle", 0.0),
+        _obj("c1", "mug", "cup", 0.2),
+        _obj("can", "can", "other", 0.4),
+        _obj("box", "box", "other", 0.6),
+        _obj("bowl", "bowl", "other", 0.8),
+    ]
+    detections = [
+        _det("bottle", 0.001),  # b1, right
+        _det("other", 0.201),  # c1 called other: a miss, not a false positive
+        _det("other", 0.401),  # the can as other: right
+        _det("cup", 0.601),  # the box called a cup: a false positive
+        _det("other", -0.5),  # an "other" on nothing: harmless
+    ]
+    counts = _Counts()
+    assert _score_scene(objects, detections, 0.05, counts) == [3]
+    s = _summary(counts, 1)
+    assert s["object_false_positives"] == 1
+    assert s["object_recall"] == 0.5  # b1 found; c1 only as "other"
+    assert s["object_recall_bottle"] == 1.0 and s["object_recall_cup"] == 0.0
+    assert s["object_precision_bottle"] == 1.0
+    assert s["object_precision_cup"] == 0.0  # its one cup was the box
+    assert math.isclose(s["distractor_rate"], 1 / 3)  # the box of can, box and bowl
+    assert s["found_by_kind"]["can"] == {"visible": 1, "found": 1, "called": 0, "rate": 1.0}
+    assert s["found_by_kind"]["mug"]["called"] == 0 and s["found_by_kind"]["mug"]["found"] == 1
+    assert s["object_label_accuracy"] == 0.5  # b1 right, c1 labelled other

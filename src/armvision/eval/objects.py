@@ -23,13 +23,16 @@ neither a hit nor a false positive; every other unmatched detection (on the robo
 a phantom) is a false positive.
 
 Distractors (truth label ``other``: cans, boxes, bowls, ... in the cluttered profile) are
-matched like the rest; a detection matched to one is a false positive and the distractor was
-"called" a bottle or cup. The summary gives, besides the overall figures, per label
-(``bottle``, ``cup``) the recall (visible objects found with their label) and the precision
-(detections of that label that were right, those matched to an object out of view excepted),
-``distractor_rate`` (the share of visible distractor appearances reported as bottle or cup) and
-``found_by_kind``: for every object kind (bottle and cup families, distractor kinds) how often
-a visible one was matched by a detection.
+matched like the rest. Only detections labelled bottle or cup are calls (tasks act on those
+alone): one matched to a distractor is a false positive and the distractor was "called" a
+bottle or cup; a detection labelled ``other`` is never a false positive (on a distractor it is
+right), and on a bottle or cup it is a miss for recall. The summary gives, besides the overall
+figures, per label (``bottle``, ``cup``) the recall (visible objects found with their label)
+and the precision (detections of that label that were right, those matched to an object out of
+view excepted), ``distractor_rate`` (the share of visible distractor appearances reported as
+bottle or cup) and ``found_by_kind``: for every object kind (bottle and cup families,
+distractor kinds) how often a visible one was matched by a detection of any label (``found``,
+``rate``) and by one labelled bottle or cup (``called``).
 """
 
 from __future__ import annotations
@@ -207,7 +210,7 @@ class _LabelCounts:
 @dataclasses.dataclass
 class _Counts:
     """The tallies over the scenes. Bottles and cups count for recall and the centre error;
-    a distractor matched by a detection is that detection's false positive and a call."""
+    a distractor matched by a bottle or cup detection is its false positive and a call."""
 
     errors_mm: list[float] = dataclasses.field(default_factory=list)
     visible: int = 0
@@ -219,7 +222,8 @@ class _Counts:
     labels: dict[str, _LabelCounts] = dataclasses.field(
         default_factory=lambda: {label: _LabelCounts() for label in CONTAINERS}
     )
-    #: per object kind (family or distractor): [visible appearances, found/called]
+    #: per object kind (family or distractor): [visible, matched by any detection, matched by
+    #: a bottle or cup detection]
     kinds: dict[str, list[int]] = dataclasses.field(default_factory=dict)
     distractors_visible: int = 0
     distractors_called: int = 0
@@ -229,7 +233,8 @@ def _score_scene(
     objects: list[_ObjectRecord], detections: list[Detection], gate_m: float, counts: _Counts
 ) -> list[int]:
     """Match the detections to the objects (filling in each object's match) and count; the
-    indices of the false positives (unmatched, or matched to a distractor)."""
+    indices of the false positives (bottle or cup detections unmatched, or matched to a
+    distractor)."""
     centers_true = np.array([o["center_cam"] for o in objects]).reshape(-1, 3)
     centers_det = np.array([d.center_cam for d in detections]).reshape(-1, 3)
     matches = match_detections(centers_true, centers_det, gate_m)
@@ -245,7 +250,7 @@ def _score_scene(
     for j, det in enumerate(detections):
         k = owner.get(j)
         truth = None if k is None else objects[k]
-        if truth is None or truth["truth"] not in CONTAINERS:
+        if det.label in CONTAINERS and (truth is None or truth["truth"] not in CONTAINERS):
             scene_fp.append(j)
         if truth is not None and truth["truth"] in CONTAINERS and not truth["visible"]:
             continue  # an object out of view: neither right nor wrong
@@ -262,20 +267,22 @@ def _count_object(
     obj: _ObjectRecord, match: tuple[int, float] | None, detections: list[Detection], c: _Counts
 ) -> None:
     """One true object's part of the tallies."""
-    kind = c.kinds.setdefault(obj["kind"], [0, 0])
+    called = match is not None and detections[match[0]].label in CONTAINERS
+    kind = c.kinds.setdefault(obj["kind"], [0, 0, 0])
     if obj["visible"]:
         kind[0] += 1
         kind[1] += int(match is not None)
+        kind[2] += int(called)
     if obj["truth"] not in CONTAINERS:
         if obj["visible"]:
             c.distractors_visible += 1
-            c.distractors_called += int(match is not None)
+            c.distractors_called += int(called)
         return
     tally = c.labels[obj["truth"]]
     if obj["visible"]:
         c.visible += 1
         tally.visible += 1
-        if match is not None:
+        if match is not None and called:
             c.hits += 1
             tally.found += int(detections[match[0]].label == obj["truth"])
     if match is not None:
@@ -312,8 +319,8 @@ def _summary(counts: _Counts, scenes: int) -> dict[str, Any]:
     summary["distractor_rate"] = _ratio(counts.distractors_called, counts.distractors_visible)
     summary["distractors_visible"] = counts.distractors_visible
     summary["found_by_kind"] = {
-        kind: {"visible": seen, "found": found, "rate": _ratio(found, seen)}
-        for kind, (seen, found) in sorted(counts.kinds.items())
+        kind: {"visible": seen, "found": found, "called": called, "rate": _ratio(found, seen)}
+        for kind, (seen, found, called) in sorted(counts.kinds.items())
     }
     return summary
 

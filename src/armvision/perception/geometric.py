@@ -7,7 +7,8 @@ plane, and a vertical cylinder is fitted to each cluster: a circle through the
 *camera-facing wall* in the table plane (only that half is seen, so a centroid would sit too
 near the camera) and the height from the highest points. Bottle or cup follows from the
 shape: height, a narrow top (neck and cap) and a gap of no depth between liquid and cap (a
-clear bottle's wall returns no depth, only its liquid and cap do).
+clear bottle's wall returns no depth, only its liquid and cap do). Closed flat tops (cans,
+canisters, boxes), straight walls (boxes) and wide short shapes (bowls) make "other".
 
 Table-plane coordinates used inside the detector are (u, w, h): two in-plane axes and the
 height above the table.
@@ -101,6 +102,20 @@ class GeometricDetector:
     simulated bottles' body is 72 % of their height). Only every ``pixel_stride``-th pixel
     and row is used, and circle fits use at most ``max_fit_points`` points.
 
+    Objects that are neither are reported as ``"other"``, their geometry kept (tasks act on
+    bottles and cups only). A closed top: of the points inside the rim (nearer the axis than
+    ``closed_top_inner`` x the radius, at least ``closed_top_min_points``), a share of at
+    least ``closed_top_fraction`` lies within ``closed_top_tolerance`` of the top (a can, box
+    or block; a cup shows its inside below the rim, or nothing inside it). Such a short
+    object without bottle evidence is other; a tall one (bottle by height alone, no neck, no
+    gap) is other too when its top band is as wide as the body (90th percentile of its
+    points' distance from the axis at least ``wide_top_ratio`` x the radius: a can stack or a
+    canister, where a bottle's top band is its narrow cap). A would-be cup is also other when
+    wide and short (radius above ``bowl_min_radius`` and height below ``bowl_height_ratio``
+    x the diameter: a bowl), or when its camera-facing wall fits two straight lines (a box's
+    faces) with an RMS distance below ``straight_wall_ratio`` x that of the circle, the
+    circle's being above ``straight_wall_min_rms``.
+
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
     near 1 for a well-seen cylinder, low for a ragged or barely seen cluster. Clusters with
@@ -133,6 +148,15 @@ class GeometricDetector:
         use_color: bool = True,
         color_contrast: float = 10.0,
         bottle_body_fraction: float = BOTTLE_BODY_FRACTION,
+        closed_top_inner: float = 0.6,
+        closed_top_tolerance: float = 0.008,
+        closed_top_fraction: float = 0.6,
+        closed_top_min_points: int = 8,
+        wide_top_ratio: float = 0.8,
+        bowl_min_radius: float = 0.042,
+        bowl_height_ratio: float = 0.8,
+        straight_wall_ratio: float = 0.8,
+        straight_wall_min_rms: float = 0.002,
         full_support_points: int = 150,
         pixel_stride: int = 2,
         max_fit_points: int = 600,
@@ -160,6 +184,15 @@ class GeometricDetector:
         self.use_color = bool(use_color)
         self.color_contrast = float(color_contrast)
         self.bottle_body_fraction = float(bottle_body_fraction)
+        self.closed_top_inner = float(closed_top_inner)
+        self.closed_top_tolerance = float(closed_top_tolerance)
+        self.closed_top_fraction = float(closed_top_fraction)
+        self.closed_top_min_points = int(closed_top_min_points)
+        self.wide_top_ratio = float(wide_top_ratio)
+        self.bowl_min_radius = float(bowl_min_radius)
+        self.bowl_height_ratio = float(bowl_height_ratio)
+        self.straight_wall_ratio = float(straight_wall_ratio)
+        self.straight_wall_min_rms = float(straight_wall_min_rms)
         self.full_support_points = int(full_support_points)
         if int(pixel_stride) < 1:
             raise ValueError(f"pixel_stride must be >= 1, not {pixel_stride}")
@@ -302,7 +335,7 @@ class GeometricDetector:
         top = float(np.partition(h, len(h) - k)[len(h) - k])
         if top < self.min_object_height:
             return None
-        label = self._classify(uw, h, center, radius, top)
+        label = self._classify(uw, h, center, radius, top, res, wall)
         foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
         intr = frame.intrinsics
         x0, y0, x1, _ = cylinder_box(intr, foot_cam + 0.5 * top * normal, normal, radius, top)
@@ -419,18 +452,78 @@ class GeometricDetector:
                     break
         return top
 
-    def _classify(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> Label:
-        if top >= self.bottle_min_height:
-            return "bottle"
+    def _classify(
+        self,
+        uw: Array,
+        h: Array,
+        center: Array,
+        radius: float,
+        top: float,
+        res: Array | None = None,
+        wall: NDArray[np.bool_] | None = None,
+    ) -> Label:
+        """Bottle, cup or other from the cluster's shape (see the class docstring)."""
+        r = np.linalg.norm(uw - center, axis=1)
+        neck = False
         upper = h > 0.75 * top
         if upper.sum() >= 5:
-            r_upper = float(np.median(np.linalg.norm(uw[upper] - center, axis=1)))
-            if r_upper < self.neck_ratio * radius:
-                return "bottle"
+            neck = float(np.median(r[upper])) < self.neck_ratio * radius
         heights = np.sort(h)
-        if len(heights) > 1 and float(np.diff(heights).max()) >= self.bottle_gap:
+        gap = len(heights) > 1 and float(np.diff(heights).max()) >= self.bottle_gap
+        closed = self._closed_top(r, h, radius, top)
+        if top >= self.bottle_min_height and not neck and not gap and closed:
+            # Tall, no neck, no gap and a flat top across the whole section: a can stack or
+            # a canister, not a bottle (a bottle's top band is its cap, ~0.45 x the radius).
+            band = h > top - self.closed_top_tolerance
+            if float(np.percentile(r[band], 90)) >= self.wide_top_ratio * radius:
+                return "other"
+        if top >= self.bottle_min_height or neck or gap:
             return "bottle"
+        if closed:
+            return "other"  # a can, box or block: a flat closed top at rim height
+        if radius > self.bowl_min_radius and top < self.bowl_height_ratio * 2.0 * radius:
+            return "other"  # wide and short: a bowl
+        if res is not None and wall is not None and self._straight_walls(uw[wall], res[wall]):
+            return "other"  # a box's faces: two straight lines fit better than the circle
         return "cup"
+
+    def _closed_top(self, r: Array, h: Array, radius: float, top: float) -> bool:
+        """Whether the points inside the rim (r < ``closed_top_inner`` x the radius, away
+        from the wall) lie at rim height: a closed top. A cup shows its inside, below the rim
+        (or nothing inside the rim at all: looking into it at a steep angle)."""
+        inside = r < self.closed_top_inner * radius
+        if int(inside.sum()) < self.closed_top_min_points:
+            return False
+        at_rim = np.abs(h[inside] - top) < self.closed_top_tolerance
+        return float(at_rim.mean()) >= self.closed_top_fraction
+
+    def _straight_walls(self, points: Array, res: Array) -> bool:
+        """Whether the camera-facing wall fits two straight lines (a box's corner, or one
+        face) much better than the circle: RMS distance to the better of the best split into
+        two lines below ``straight_wall_ratio`` x the circle's RMS residual, which must
+        itself exceed ``straight_wall_min_rms`` (a round wall fits the circle to the noise)."""
+        if len(points) < 20:
+            return False
+        circle_rms = float(np.sqrt(np.mean(res**2)))
+        if circle_rms < self.straight_wall_min_rms:
+            return False
+        points = points[:: max(1, len(points) // self.max_fit_points)]
+        q = points - points.mean(axis=0)
+        _, vecs = np.linalg.eigh(q.T @ q)
+        ordered = points[np.argsort(q @ vecs[:, 1])]
+        n = len(ordered)
+        best = _line_ss(ordered)
+        for k in range(5, n - 5, max(1, n // 40)):
+            best = min(best, _line_ss(ordered[:k]) + _line_ss(ordered[k:]))
+        return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
+
+
+def _line_ss(points: Array) -> float:
+    """Sum of squared distances of 2-D points to their best-fitting line."""
+    if len(points) < 3:
+        return 0.0
+    q = points - points.mean(axis=0)
+    return float(np.linalg.eigvalsh(q.T @ q)[0])
 
 
 def _pose(T_base_cam: ArrayLike | None) -> Array | None:

@@ -1,0 +1,109 @@
+"""The geometric detector's "other" rules: a closed flat top, straight walls and a wide short
+bowl, on synthetic point sets and on a rendered scene with one can, one cup and one box."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from armvision.config import Config
+from armvision.geometry import inv_T, transform_points
+from armvision.perception.detection import FrameContext
+from armvision.perception.geometric import GeometricDetector
+from armvision.sim.arm import SimArm
+from armvision.sim.camera import SimCamera
+from armvision.sim.scene import SceneSpec, random_camera_pose, random_cluttered_object
+from armvision.sim.world import SimWorld
+
+RNG = np.random.default_rng(4242)
+
+
+def _wall(radius: float, height: float, n: int = 400, noise: float = 0.0008) -> np.ndarray:
+    """(u, w, h) of a cylinder's camera-facing half (the camera toward -w), centre (0, 0.6)."""
+    a = RNG.uniform(math.pi, 2.0 * math.pi, n)
+    r = radius + RNG.normal(0.0, noise, n)
+    return np.column_stack([r * np.cos(a), 0.6 + r * np.sin(a), RNG.uniform(0.005, height, n)])
+
+
+def _disc(radius: float, height: float, n: int = 150) -> np.ndarray:
+    """Points on a flat disc of ``radius`` at ``height`` (a closed top, or a cup's liquid)."""
+    r = radius * np.sqrt(RNG.uniform(0.0, 1.0, n))
+    a = RNG.uniform(0.0, 2.0 * math.pi, n)
+    return np.column_stack([r * np.cos(a), 0.6 + r * np.sin(a), np.full(n, height)])
+
+
+def _classify(points: np.ndarray, radius: float, height: float) -> str:
+    det = GeometricDetector()
+    uw, h = points[:, :2], points[:, 2]
+    center = np.array([0.0, 0.6])
+    res = np.linalg.norm(uw - center, axis=1) - radius
+    wall = (uw[:, 1] < 0.6) & (np.abs(res) < 0.006)
+    return det._classify(uw, h, center, radius, height, res, wall)
+
+
+def test_a_closed_top_at_rim_height_is_other_an_open_cup_is_a_cup() -> None:
+    can = np.concatenate([_wall(0.035, 0.11), _disc(0.034, 0.11)])
+    assert _classify(can, 0.035, 0.11) == "other"
+    # A cup seen from above: its liquid 3 cm below the rim, or nothing inside at all.
+    cup = np.concatenate([_wall(0.034, 0.1), _disc(0.03, 0.07)])
+    assert _classify(cup, 0.034, 0.1) == "cup"
+    assert _classify(_wall(0.034, 0.1), 0.034, 0.1) == "cup"
+
+
+def test_a_tall_closed_top_without_a_neck_is_other_a_bottle_cap_is_not() -> None:
+    stack = np.concatenate([_wall(0.036, 0.19), _disc(0.035, 0.19)])
+    assert _classify(stack, 0.036, 0.19) == "other"
+    # An opaque bottle: the closed top is its cap, narrow, so the top band is not wide.
+    bottle = np.concatenate([_wall(0.032, 0.16), _wall(0.014, 0.21)[:100], _disc(0.014, 0.21)])
+    assert _classify(bottle, 0.032, 0.21) == "bottle"
+
+
+def test_a_wide_short_open_object_is_a_bowl() -> None:
+    bowl = np.concatenate([_wall(0.065, 0.055), _disc(0.03, 0.02)])
+    assert _classify(bowl, 0.065, 0.055) == "other"
+
+
+def test_straight_walls_fit_two_lines_better_than_the_circle() -> None:
+    det = GeometricDetector()
+    # A box's corner facing the camera: two faces at right angles, 1 mm noise.
+    t = RNG.uniform(0.0, 0.05, 300)
+    corner = np.concatenate([np.column_stack([t, -t]), np.column_stack([-t, -t])]) / math.sqrt(
+        2.0
+    ) + RNG.normal(0.0, 0.0008, (600, 2))
+    center = np.array([0.0, 0.0])
+    radius = float(np.mean(np.linalg.norm(corner, axis=1)))
+    res = np.linalg.norm(corner, axis=1) - radius
+    assert det._straight_walls(corner, res)
+    arc = _wall(0.034, 0.1, 600)[:, :2] - [0.0, 0.6]
+    res_arc = np.linalg.norm(arc - center, axis=1) - 0.034
+    assert not det._straight_walls(arc, res_arc)
+
+
+def test_a_rendered_can_cup_and_box() -> None:
+    """One can, one cup and one box on the table: the cup is a cup, the can and box other."""
+    rng = np.random.default_rng(5151)
+    placed = {"can": (0.40, 0.12), "cup": (0.36, -0.02), "box": (0.42, -0.16)}
+    objects = tuple(
+        dataclasses.replace(random_cluttered_object(rng, kind, kind), x=x, y=y)
+        for kind, (x, y) in placed.items()
+    )
+    config = Config()
+    scene = SceneSpec(random_camera_pose(config.sim, None), objects)
+    with SimWorld(config, seed=5151, scene=scene) as world, SimCamera(world) as camera:
+        world.advance(0.1)
+        frame = camera.read()
+        truth = world.ground_truth()
+        q = SimArm(world).get_joint_positions()
+    detections = GeometricDetector(seed=5151).detect(
+        frame, FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q)
+    )
+    T_cam_base = inv_T(truth.T_base_cam)
+    labels = {}
+    for state in truth.objects:
+        c = transform_points(T_cam_base @ state.T_base_obj, [0.0, 0.0, state.spec.height / 2])
+        near = [d for d in detections if np.linalg.norm(d.center_cam - c) < 0.05]
+        assert near, f"{state.spec.kind} not detected: {detections}"
+        labels[state.spec.kind] = near[0].label
+    assert labels == {"can": "other", "cup": "cup", "box": "other"}
