@@ -145,3 +145,20 @@ def test_visp_real_set_matches_the_published_camera_pose() -> None:
     # joint finds the Franka's tag offset from zero: within 2 mm of ViSP's eMo.
     zero = rows[("joint", "estimated from zero")]
     assert np.linalg.norm(np.subtract(zero["tag_offset_mm"], 1000 * PUBLISHED_eMo[:3, 3])) < 2
+
+
+def test_posecnn_scoring_counts_other_as_no_call() -> None:
+    from armvision.eval.real_posecnn import _score
+
+    frames = [
+        {
+            "frame": "f0",
+            "refs": [("006_mustard_bottle", "bottle"), ("024_bowl", "other"), ("025_mug", "cup")],
+            # the bottle found, the bowl reported as "other", the mug called a bottle
+            "pairs": [(0, "bottle"), (1, "other"), (2, "bottle")],
+        }
+    ]
+    summary = _score(frames)
+    assert summary["bottle_recall"] == "1/1" and summary["bottle_precision"] == "1/2"
+    assert summary["cup_recall"] == "0/1" and summary["cup_precision"] == "0/0"
+    assert summary["distractor_calls"] == {}  # the bowl was not called bottle or cup

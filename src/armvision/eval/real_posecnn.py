@@ -109,6 +109,8 @@ def _score(frames: list[dict[str, Any]]) -> dict[str, Any]:
     calls: dict[str, dict[str, int]] = {}
     for f in frames:
         for m, lab in f["pairs"]:
+            if lab not in ("bottle", "cup"):
+                continue  # reported as "other": no call
             name = f["refs"][m][0] if m >= 0 else "(no reference box)"
             if m < 0 or f["refs"][m][1] == "other":
                 calls.setdefault(name, {"bottle": 0, "cup": 0})[lab] += 1
