@@ -46,9 +46,8 @@ CAP_RADIUS = BOTTLE_NECK_RADIUS * BOTTLE_CAP_WIDENING  # of the radius, as the s
 
 
 def random_bottle(rng: np.random.Generator, name: str) -> ObjectSpec:
-    """A bottle with fill 0-100 % (10 % exactly empty, 10 % exactly full), not yet placed."""
-    u = rng.uniform()
-    fill = 0.0 if u < 0.1 else 1.0 if u < 0.2 else float(rng.uniform(0.0, 1.0))
+    """A bottle with fill 0-100 % (:func:`random_fill`), not yet placed."""
+    fill = random_fill(rng)
     return ObjectSpec(
         name,
         "bottle",

@@ -17,6 +17,8 @@ runs both on the same frame and context and pairs them:
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from armvision.camera.frames import RGBDFrame, project
@@ -81,31 +83,11 @@ class HybridDetector:
             if i not in match:
                 out.append(net)
                 continue
-            geo = fitted[match[i]]
+            # The network's label and score, the geometric fit's box and 3-D shape.
             out.append(
-                Detection(
-                    label=net.label,
-                    score=float(net.score),
-                    box=geo.box,
-                    center_cam=geo.center_cam,
-                    size=geo.size,
-                    radius=geo.radius,
-                    height=geo.height,
-                    axis_cam=geo.axis_cam,
-                )
+                dataclasses.replace(fitted[match[i]], label=net.label, score=float(net.score))
             )
         for j, geo in enumerate(fitted):
             if j not in taken:
-                out.append(
-                    Detection(
-                        label="other",
-                        score=float(geo.score),
-                        box=geo.box,
-                        center_cam=geo.center_cam,
-                        size=geo.size,
-                        radius=geo.radius,
-                        height=geo.height,
-                        axis_cam=geo.axis_cam,
-                    )
-                )
+                out.append(dataclasses.replace(geo, label="other", score=float(geo.score)))
         return out
