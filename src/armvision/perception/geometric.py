@@ -16,6 +16,7 @@ height above the table.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -154,7 +155,8 @@ class GeometricDetector:
         closed_top_tolerance: float = 0.008,
         closed_top_fraction: float = 0.6,
         closed_top_min_points: int = 8,
-        wide_top_ratio: float = 0.8,
+        wide_top_ratio: float = 0.9,
+        top_band: float = 0.015,
         bowl_min_radius: float = 0.042,
         bowl_height_ratio: float = 0.8,
         straight_wall_ratio: float = 0.8,
@@ -163,11 +165,13 @@ class GeometricDetector:
         pixel_stride: int = 2,
         max_fit_points: int = 600,
         edge_jump: float = 0.012,
+        clear_share: float = 0.3,
         contained_fraction: float = 0.8,
         contained_margin: float = 0.003,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
+        self.clear_share = float(clear_share)
         self.contained_fraction = float(contained_fraction)
         self.contained_margin = float(contained_margin)
         self.min_height = float(min_height)
@@ -197,6 +201,7 @@ class GeometricDetector:
         self.closed_top_fraction = float(closed_top_fraction)
         self.closed_top_min_points = int(closed_top_min_points)
         self.wide_top_ratio = float(wide_top_ratio)
+        self.top_band = float(top_band)
         self.bowl_min_radius = float(bowl_min_radius)
         self.bowl_height_ratio = float(bowl_height_ratio)
         self.straight_wall_ratio = float(straight_wall_ratio)
@@ -260,7 +265,7 @@ class GeometricDetector:
             )
             if det is not None:
                 detections.append(det)
-        return detections
+        return self._clear_containers(frame, detections, normal, offset, e1, e2)
 
     # ---------------------------------------------------------------- steps
 
@@ -450,6 +455,82 @@ class GeometricDetector:
             axis_cam=normal.copy(),
         )
 
+    def _clear_containers(
+        self,
+        frame: RGBDFrame,
+        detections: list[Detection],
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> list[Detection]:
+        """Detections not labelled bottle that the depth camera mostly cannot see (a missing
+        share of at least ``clear_share`` over their front surface, see
+        :meth:`_see_through`, nearest first, leaving out the boxes of nearer clear objects,
+        which blank what is behind them): clear plastic or
+        glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl."""
+        if self.clear_share >= 1.0:
+            return detections
+        out = list(detections)
+        clear_boxes: list[tuple[float, float, float, float]] = []
+        for i in np.argsort([d.center_cam[2] for d in detections]):  # nearest first
+            det = out[i]
+            foot = det.center_cam - 0.5 * det.height * normal
+            center = np.array([foot @ e1, foot @ e2])
+            share = self._see_through(
+                frame, center, det.radius, det.height, normal, offset, e1, e2, clear_boxes
+            )
+            if share < self.clear_share:
+                continue
+            clear_boxes.append(det.box)
+            if det.label != "bottle":
+                label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
+                out[i] = dataclasses.replace(det, label=label)
+        return out
+
+    def _see_through(
+        self,
+        frame: RGBDFrame,
+        center: Array,
+        radius: float,
+        top: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+        skip_boxes: Sequence[tuple[float, float, float, float]] = (),
+    ) -> float:
+        """Share of the object's front surface where the depth camera returns nothing:
+        sampled over the middle 60 % of its width and 15-85 % of its height; samples with
+        something nearer in front (another object) do not count. Near 0 for an opaque
+        object (speckle), about half for clear plastic on a D435 (52 % missing on ClearGrasp's
+        real frames, 22-75 % per frame; the rest mostly shows what is behind). Missing depth
+        alone, not depth behind the surface: a fitted cylinder wider than a round or tapered
+        object (fruit, a bowl) sees the table behind its edges. 0 with fewer than 12 samples
+        to judge by."""
+        intr = frame.intrinsics
+        to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
+        lateral = np.array([-to_cam[1], to_cam[0]])
+        t = radius * np.linspace(-0.6, 0.6, 7)
+        hs = top * np.linspace(0.15, 0.85, 8)
+        uw = center + np.outer(np.sqrt(radius**2 - t**2), to_cam) + np.outer(t, lateral)
+        base = uw[:, :1] * e1 + uw[:, 1:] * e2 - offset * normal
+        p_cam = (base[None, :, :] + hs[:, None, None] * normal).reshape(-1, 3)
+        uv = np.rint(project(intr, p_cam))
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        for x0, y0, x1, y1 in skip_boxes:  # behind a nearer object, perhaps a clear one
+            ok &= ~((uv[:, 0] >= x0) & (uv[:, 0] <= x1) & (uv[:, 1] >= y0) & (uv[:, 1] <= y1))
+        if ok.sum() < 12:
+            return 0.0
+        seen = np.asarray(frame.depth, dtype=float)[uv[ok, 1].astype(int), uv[ok, 0].astype(int)]
+        expected = p_cam[ok, 2]
+        margin = np.maximum(0.015, 3.0 * depth_rms_error(expected))
+        missing = seen <= 0.0
+        judged = missing | (seen >= expected - margin)
+        if judged.sum() < 12:
+            return 0.0
+        return float(missing[judged].mean())
+
     def _flat_face(self, uw: Array) -> _Circle | None:
         """A cluster without a round wall as a footprint circle: its width across the view
         (2nd to 98th percentile along its principal axis) as the diameter, the centre half
@@ -568,15 +649,15 @@ class GeometricDetector:
         neck = False
         upper = h > 0.75 * top
         if upper.sum() >= 5:
-            neck = float(np.median(r[upper])) < self.neck_ratio * radius
+            neck = float(np.percentile(r[upper], 90)) < self.neck_ratio * radius
         heights = np.sort(h)
         gap = len(heights) > 1 and float(np.diff(heights).max()) >= self.bottle_gap
         closed = self._closed_top(r, h, radius, top)
-        if top >= self.bottle_min_height and not neck and not gap and closed:
-            # Tall, no neck, no gap and a flat top across the whole section: a can stack or
-            # a canister, not a bottle (a bottle's top band is its cap, ~0.45 x the radius).
-            band = h > top - self.closed_top_tolerance
-            if float(np.percentile(r[band], 90)) >= self.wide_top_ratio * radius:
+        if top >= self.bottle_min_height and not neck and not gap:
+            # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
+            # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
+            band = h > top - self.top_band
+            if float(np.percentile(r[band], 75)) >= self.wide_top_ratio * radius:
                 return "other"
         if top >= self.bottle_min_height or neck or gap:
             return "bottle"
