@@ -166,12 +166,18 @@ def fit_circle_kasa(xy: Array) -> tuple[Array, float]:
 
 
 def fit_circle_geometric(
-    xy: Array, center: Array, radius: float, scale: float, iterations: int = 15
+    xy: Array,
+    center: Array,
+    radius: float,
+    scale: float,
+    iterations: int = 15,
+    tolerance: float = 1e-6,
 ) -> tuple[Array, float, Array]:
     """Geometric circle fit (residual |p - c| - r) by Gauss-Newton with Huber weights (IRLS).
 
     Points with |residual| > ``scale`` get weight scale / |residual|, so stray points pull
-    linearly, not quadratically. Returns (centre, radius, residuals). A few numpy lines per
+    linearly, not quadratically. Stops when no parameter moves more than ``tolerance``
+    (metres) in an iteration. Returns (centre, radius, residuals). A few numpy lines per
     iteration instead of scipy.optimize.least_squares, whose per-call overhead is a large
     part of the frame budget when a scene holds four objects.
     """
@@ -192,7 +198,7 @@ def fit_circle_geometric(
             break
         c += step[:2]
         r += float(step[2])
-        if np.abs(step).max() < 1e-6:
+        if np.abs(step).max() < tolerance:
             break
     res = np.linalg.norm(xy - c, axis=1) - r
     return c, r, res

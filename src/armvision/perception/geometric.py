@@ -166,12 +166,14 @@ class GeometricDetector:
         max_fit_points: int = 600,
         edge_jump: float = 0.012,
         clear_share: float = 0.3,
+        fit_tolerance: float = 2e-5,
         contained_fraction: float = 0.8,
         contained_margin: float = 0.003,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
         self.clear_share = float(clear_share)
+        self.fit_tolerance = float(fit_tolerance)
         self.contained_fraction = float(contained_fraction)
         self.contained_margin = float(contained_margin)
         self.min_height = float(min_height)
@@ -554,7 +556,9 @@ class GeometricDetector:
         # A few hundred points fix a circle to well under a millimetre; thousands cost time.
         sub = slice(None, None, max(1, len(uw) // self.max_fit_points))
         center, radius = fit_circle_kasa(uw[sub])
-        center, radius, _ = fit_circle_geometric(uw[sub], center, radius, 2.0 * sigma)
+        center, radius, _ = fit_circle_geometric(
+            uw[sub], center, radius, 2.0 * sigma, tolerance=self.fit_tolerance
+        )
         res = np.linalg.norm(uw - center, axis=1) - radius
         # The camera is at (0, 0) in (u, w): keep the wall facing it, near the circle.
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
@@ -564,7 +568,9 @@ class GeometricDetector:
             if wall.sum() < 10:
                 return None
             fit = np.flatnonzero(wall)[:: max(1, int(wall.sum()) // self.max_fit_points)]
-            center, radius, _ = fit_circle_geometric(uw[fit], center, radius, 2.0 * sigma)
+            center, radius, _ = fit_circle_geometric(
+                uw[fit], center, radius, 2.0 * sigma, tolerance=self.fit_tolerance
+            )
             res = np.linalg.norm(uw - center, axis=1) - radius
         return center, radius, res, wall
 
