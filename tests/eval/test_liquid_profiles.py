@@ -8,9 +8,8 @@ import math
 from armvision.config import Config
 from armvision.eval.liquid import (
     CLUTTERED_DISTRACTORS,
-    UNKNOWN_CONFIDENCE,
     _by_family,
-    _opaque_summary,
+    _unknown_summary,
     liquid_scene,
 )
 from armvision.sim.scene import BOTTLE_FAMILIES, footprint_gap, footprint_of
@@ -43,19 +42,31 @@ def test_cluttered_scenes_mix_bottle_families_with_distractors() -> None:
     assert kinds <= set(BOTTLE_FAMILIES) and len(kinds) >= 4
 
 
-def test_per_family_and_opaque_figures() -> None:
+def test_per_family_and_unknown_figures() -> None:
+    """Hand-worked: an unknown answer is left out of the MAE and counted, for a see-through
+    bottle against the meter, for an opaque one in its favour."""
     per_bottle = [
-        {"kind": "wine_bottle", "fill_visible": True, "error_pct": 4.0, "confidence": 0.9},
-        {"kind": "wine_bottle", "fill_visible": True, "error_pct": -2.0, "confidence": 0.8},
-        {"kind": "jug", "fill_visible": False, "error_pct": 60.0, "confidence": 0.5},
-        {"kind": "jug", "fill_visible": False, "error_pct": 0.0, "confidence": 0.0},
+        {"kind": "wine_bottle", "fill_visible": True, "error_pct": 4.0},
+        {"kind": "wine_bottle", "fill_visible": True, "error_pct": -2.0},
+        {"kind": "wine_bottle", "fill_visible": True, "error_pct": None},
+        {"kind": "water_bottle", "fill_visible": True, "error_pct": 1.0},
+        {"kind": "jug", "fill_visible": False, "error_pct": 60.0},
+        {"kind": "jug", "fill_visible": False, "error_pct": None},
+        {"kind": "jug", "fill_visible": False, "error_pct": None},
+        {"kind": "jug", "fill_visible": False, "error_pct": None},
     ]
     assert _by_family(per_bottle) == {
-        "jug": {"bottles": 2, "mae_pct": 30.0},
-        "wine_bottle": {"bottles": 2, "mae_pct": 3.0},
+        "jug": {"bottles": 4, "fill_visible": False, "unknown": 3, "mae_pct": 60.0},
+        "water_bottle": {"bottles": 1, "fill_visible": True, "unknown": 0, "mae_pct": 1.0},
+        "wine_bottle": {"bottles": 3, "fill_visible": True, "unknown": 1, "mae_pct": 3.0},
     }
-    opaque = _opaque_summary(per_bottle)
-    assert opaque["opaque_bottles"] == 2 and opaque["opaque_unknown_rate"] == 0.5
-    assert opaque["mae_pct_fill_visible"] == 3.0
-    assert UNKNOWN_CONFIDENCE > 0.0
-    assert math.isnan(_opaque_summary(per_bottle[:2])["opaque_unknown_rate"])
+    unknown = _unknown_summary(per_bottle)
+    assert unknown["opaque_bottles"] == 4 and unknown["opaque_unknown_rate"] == 0.75
+    assert unknown["mae_pct_opaque"] == 60.0
+    assert unknown["clear_bottles"] == 4 and unknown["clear_measured"] == 3
+    assert unknown["clear_unknown_rate"] == 0.25
+    assert unknown["mae_pct_fill_visible"] == (4.0 + 2.0 + 1.0) / 3
+    clear_only = _unknown_summary(per_bottle[:4])
+    assert math.isnan(clear_only["opaque_unknown_rate"])
+    assert math.isnan(clear_only["mae_pct_opaque"])
+    assert math.isnan(_by_family(per_bottle[2:3])["wine_bottle"]["mae_pct"])

@@ -94,11 +94,20 @@ def _cylinder_hit(o, d, cx, cy, r, z0, z1):
     return np.minimum(lam_side, lam_top)
 
 
-def _render_bottle(fill: float, liquid_rgb=(60, 110, 200)):
-    """A clear bottle (r 30 mm, body 150 mm, neck to 200 mm, cap) 0.6 m in front of the camera.
+def _render_bottle(
+    fill: float,
+    liquid_rgb=(60, 110, 200),
+    body: float = 0.15,
+    opaque: bool = False,
+    occluder: bool = False,
+):
+    """A clear bottle (r 30 mm, body ``body`` m, neck to 200 mm, cap) 0.6 m in front of the
+    camera.
 
     Depth: table, liquid and cap (a clear wall returns none, as in MuJoCo). Colour: table,
-    liquid shaded by its normal, the wall as a 25 % tint, a white cap. Returns the frame, the
+    liquid shaded by its normal, the wall as a 25 % tint, a white cap. ``opaque``: the wall
+    and neck are white plastic instead, returning depth and hiding the liquid. ``occluder``:
+    a grey board stands 0.2 m in front of the bottle, hiding its body. Returns the frame, the
     box of the projected bottle and the true fill (liquid height over inner body height).
     """
     R_world_cam, p_world_cam = _camera()
@@ -106,7 +115,7 @@ def _render_bottle(fill: float, liquid_rgb=(60, 110, 200)):
     rays_cam = np.stack([(u - INTR.ppx) / INTR.fx, (v - INTR.ppy) / INTR.fy, np.ones(u.shape)])
     d = (R_world_cam @ rays_cam.reshape(3, -1)).T
     o = p_world_cam
-    cx, cy, r, body, height, base = 0.0, 0.6, 0.03, 0.15, 0.20, 0.003
+    cx, cy, r, height, base = 0.0, 0.6, 0.03, 0.20, 0.003
     r_liq = r - 0.002
     liquid_top = base + fill * (body - base)
     lam_table = np.where(d[:, 2] < 0, -o[2] / d[:, 2], np.inf)
@@ -120,6 +129,16 @@ def _render_bottle(fill: float, liquid_rgb=(60, 110, 200)):
         _cylinder_hit(o, d, cx, cy, r, 0.0, body), _cylinder_hit(o, d, cx, cy, 0.013, body, height)
     )
     lam = np.minimum(np.minimum(lam_table, lam_liq), lam_cap)
+    if opaque:
+        lam = np.minimum(lam, lam_wall)
+    lam_box = np.full(len(d), np.inf)
+    if occluder:  # a board 0.2 m nearer than the bottle: x -0.03..0.03, y 0.4, z 0..0.2
+        lo, hi = np.array([-0.03, 0.399, 0.0]), np.array([0.03, 0.401, 0.2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (lo - o) / d, (hi - o) / d
+        near, far = np.nanmax(np.minimum(t0, t1), axis=1), np.nanmin(np.maximum(t0, t1), axis=1)
+        lam_box = np.where((near <= far) & (near > 0), near, np.inf)
+        lam = np.minimum(lam, lam_box)
     color = np.zeros((len(d), 3))
     color[:] = (140, 150, 160)  # far background
     color[lam == lam_table] = (185, 155, 115)  # table
@@ -129,8 +148,12 @@ def _render_bottle(fill: float, liquid_rgb=(60, 110, 200)):
     shade = np.where(on_top, 1.0, 0.6 + 0.4 * np.abs(p_liq[:, 0] - cx) / r_liq)
     color[liq] = np.asarray(liquid_rgb, float) * np.clip(shade, 0, 1.2)[:, None]
     color[(lam == lam_cap) & np.isfinite(lam_cap)] = (235, 235, 235)
-    tint = np.isfinite(lam_wall) & (lam_wall <= lam)
-    color[tint] = 0.75 * color[tint] + 0.25 * np.array([215, 235, 255])
+    if opaque:
+        color[(lam == lam_wall) & np.isfinite(lam_wall)] = (225, 225, 220)
+    else:
+        tint = np.isfinite(lam_wall) & (lam_wall <= lam)
+        color[tint] = 0.75 * color[tint] + 0.25 * np.array([215, 235, 255])
+    color[(lam == lam_box) & np.isfinite(lam_box)] = (90, 90, 95)
     z = (lam[:, None] * d) @ R_world_cam[:, 2]  # depth along the optical axis
     depth = np.where(np.isfinite(lam), z, 0.0).reshape(480, 640).astype(np.float32)
     image = np.clip(color, 0, 255).astype(np.uint8).reshape(480, 640, 3)
@@ -146,25 +169,45 @@ def _render_bottle(fill: float, liquid_rgb=(60, 110, 200)):
     return RGBDFrame(image, depth, INTR, 0.0, 0), box, fill
 
 
-@pytest.mark.parametrize("fill", [0.0, 0.3, 0.62, 1.0])
-def test_profile_reads_a_ray_cast_bottle(fill: float) -> None:
+@pytest.mark.parametrize(("fill", "body"), [(0.0, 0.15), (0.3, 0.15), (0.62, 0.15), (1.0, 0.15),
+                                           (0.4, 0.11), (0.55, 0.17)])  # fmt: skip
+def test_profile_reads_a_ray_cast_bottle(fill: float, body: float) -> None:
     """The default method on a ray-cast bottle: within 3 points of the true fill, 0 % and
-    100 % included; the body top (150 mm) within 8 mm; the debug crop is the box."""
-    frame, box, true_fill = _render_bottle(fill)
-    meter = LiquidLevelMeter(body_fraction=0.75)  # this bottle: 150 of 200 mm
-    level = meter.measure(frame, box)
-    assert level.method == "profile"
-    assert abs(level.fill - true_fill) <= 0.03, level
-    assert abs(level.body_height_m - 0.15) <= 0.008
+    100 % included; the body top (its shoulder: 150 mm of 200, or 110 or 170 mm, none of them
+    the meter's prior of 72 %) found within 5 mm; the debug crop is the box."""
+    frame, box, true_fill = _render_bottle(fill, body=body)
+    level = LiquidLevelMeter().measure(frame, box)
+    assert level.method == "profile" and level.known and level.unknown is None
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.03, level
+    assert level.body_height_m is not None and abs(level.body_height_m - body) <= 0.005
     assert 0.0 <= level.confidence <= 1.0
     assert (level.colour is None) == (fill == 0.0)
     assert level.debug.ndim == 3 and level.debug.shape[2] == 3
     if 0.0 < fill < 1.0:
         # The reported row is the liquid surface on the axis, projected.
         R_world_cam, p_world_cam = _camera()
-        top = 0.003 + fill * (0.15 - 0.003)
+        top = 0.003 + fill * (body - 0.003)
         row = project(INTR, (np.array([0.0, 0.6, top]) - p_world_cam) @ R_world_cam)[0, 1]
-        assert abs(level.level_row - row) <= 2.0
+        assert level.level_row is not None and abs(level.level_row - row) <= 2.0
+
+
+def test_an_opaque_bottle_is_unknown() -> None:
+    """White plastic returns depth over the body and the neck and hides the liquid: the meter
+    says unknown and why, never a number, with no confidence."""
+    frame, box, _ = _render_bottle(0.5, opaque=True)
+    level = LiquidLevelMeter().measure(frame, box)
+    assert level.fill is None and level.level_row is None and not level.known
+    assert level.opaque and level.unknown is not None and "opaque" in level.unknown
+    assert level.confidence == 0.0 and level.colour is None
+    assert level.debug.ndim == 3
+
+
+def test_a_hidden_body_is_unknown() -> None:
+    """A box standing in front of the bottle's body: its liquid cannot be seen."""
+    frame, box, _ = _render_bottle(0.5, occluder=True)
+    level = LiquidLevelMeter().measure(frame, box)
+    assert level.fill is None and not level.opaque
+    assert level.unknown is not None and "hidden" in level.unknown
 
 
 def test_profile_uses_a_known_geometry() -> None:
@@ -173,8 +216,12 @@ def test_profile_uses_a_known_geometry() -> None:
     R_world_cam, p_world_cam = _camera()
     centre_cam = (np.array([0.0, 0.6, 0.1]) - p_world_cam) @ R_world_cam
     geometry = ContainerGeometry(tuple(centre_cam), 0.03, 0.2)
-    level = LiquidLevelMeter(body_fraction=0.75).measure(frame, box, geometry)
-    assert abs(level.fill - true_fill) <= 0.03
+    level = LiquidLevelMeter().measure(frame, box, geometry)
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
+    # A detector's radius short of the wall (a clear bottle's liquid, 5 mm in): the box decides.
+    short = ContainerGeometry(tuple(centre_cam), 0.025, 0.2)
+    level = LiquidLevelMeter().measure(frame, box, short)
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
 
 
 def test_bad_inputs_say_what_to_do() -> None:

@@ -36,7 +36,8 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
     """Tags, containers and liquid levels in one frame, and the annotated image.
 
     Every tag record has the same keys, and so has every detection record (``fill``,
-    ``fill_confidence`` and ``liquid_colour`` are None for a cup or an unmeasured bottle);
+    ``fill_confidence`` and ``liquid_colour`` are None for a cup or an unmeasured bottle;
+    ``fill`` is None and ``fill_unknown`` says why when the liquid cannot be seen);
     the keys are documented in the README ("Perception on a saved frame").
     """
     import numpy as np
@@ -62,8 +63,9 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
     records = []
     for det, level in zip(detections, levels):
         record = det.to_dict()
-        record["fill"] = None if level is None else float(level.fill)
+        record["fill"] = None if level is None or level.fill is None else float(level.fill)
         record["fill_confidence"] = None if level is None else float(level.confidence)
+        record["fill_unknown"] = None if level is None else level.unknown
         record["liquid_colour"] = (
             None if level is None or level.colour is None else [int(c) for c in level.colour]
         )

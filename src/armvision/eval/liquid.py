@@ -8,6 +8,12 @@ scene. The container box is the projection of the true bottle geometry, so the l
 is measured independently of any detector. Bottles less than ``min_visible`` visible (another
 object or the arm in front, or partly outside the image), judged from MuJoCo's segmentation
 rendering, are skipped and counted.
+
+The meter may answer ``unknown`` (``LiquidLevel.fill`` None). The MAE is over the bottles that
+got a number, and the unknown answers are counted apart: on a see-through bottle an unknown is
+a failure (``clear_unknown_rate``, so that answering unknown cannot buy a lower MAE), on an
+opaque one it is the right answer (``opaque_unknown_rate``); per family both show
+(``by_family``).
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from numpy.typing import NDArray
 from armvision.camera.frames import Intrinsics, pixel_box, project
 from armvision.config import Config
 from armvision.geometry import inv_T
-from armvision.perception.liquid import LiquidLevelMeter
+from armvision.perception.liquid import LiquidLevel, LiquidLevelMeter
 from armvision.sim._mujoco import mujoco
 from armvision.sim.camera import SimCamera
 from armvision.sim.scene import (
@@ -62,9 +68,6 @@ def random_bottle(rng: np.random.Generator, name: str) -> ObjectSpec:
 
 #: Distractors standing among the bottles of a cluttered liquid scene.
 CLUTTERED_DISTRACTORS = 2
-#: The meter has no "unknown" answer yet: a reading with less confidence than this counts as
-#: one (what an opaque bottle, whose liquid cannot be seen, should get).
-UNKNOWN_CONFIDENCE = 0.05
 
 
 def random_fill(rng: np.random.Generator) -> float:
@@ -170,12 +173,13 @@ def _bottle_record(
     T_cam_obj: NDArray[np.float64],
     visible: float,
     box: tuple[float, float, float, float],
-    prof: Any,
-    hough: Any,
+    prof: LiquidLevel,
+    hough: LiquidLevel,
     base: float,
 ) -> dict[str, Any]:
     """One measured bottle of ``per_bottle``: both methods' readings beside the truth, and
-    what each cue of the default method alone would have said (same body top)."""
+    what each cue of the default method alone would have said (same body top). ``fill`` and
+    ``error_pct`` are None when the default method answered unknown (``unknown`` says why)."""
     body = prof.body_height_m
     assert body is not None  # the profile method always reports the body top
     span = body - base
@@ -186,6 +190,7 @@ def _bottle_record(
             ("depth", prof.level_depth_m),
         )
     }
+    assert hough.fill is not None  # the Hough method always answers
     return {
         "scene": scene_seed,
         "name": spec.name,
@@ -199,8 +204,9 @@ def _bottle_record(
         "box": list(box),
         "fill_true": spec.fill,
         "fill": prof.fill,
+        "unknown": prof.unknown,
         "fill_hough": hough.fill,
-        "error_pct": 100.0 * (prof.fill - spec.fill),
+        "error_pct": None if prof.fill is None else 100.0 * (prof.fill - spec.fill),
         "error_pct_hough": 100.0 * (hough.fill - spec.fill),
         "confidence": prof.confidence,
         "level_m_true": spec.liquid_top,
@@ -274,17 +280,24 @@ def _measure_scene(
             )
 
 
+def _errors(records: list[dict[str, Any]]) -> NDArray[np.float64]:
+    """Absolute errors (points) of the records that got a number."""
+    return np.abs([b["error_pct"] for b in records if b["error_pct"] is not None])
+
+
 def _summary(tally: _Tally, scenes: int) -> dict[str, Any]:
     per_bottle, ms_profile, ms_hough = tally.per_bottle, tally.ms_profile, tally.ms_hough
-    err = np.abs([b["error_pct"] for b in per_bottle])
-    err_h = np.abs([b["error_pct_hough"] for b in per_bottle])
+    clear = [b for b in per_bottle if b["fill_visible"]]
+    err = _errors(clear)
+    err_h = np.abs([b["error_pct_hough"] for b in clear])
 
     def cue_mae(key: str) -> float:
-        errs = [abs(b[key] - b["fill_true"]) for b in per_bottle if b[key] is not None]
+        errs = [abs(b[key] - b["fill_true"]) for b in clear if b[key] is not None]
         return 100.0 * float(np.mean(errs)) if errs else math.nan
 
     return {
-        "mae_pct": float(err.mean()) if len(err) else math.nan,
+        # Over the bottles that got a number, opaque ones included (they should not get one).
+        "mae_pct": float(_errors(per_bottle).mean()) if len(_errors(per_bottle)) else math.nan,
         "mae_pct_hough": float(err_h.mean()) if len(err_h) else math.nan,
         "bottles": len(per_bottle),
         "skipped": len(tally.skipped),
@@ -297,30 +310,45 @@ def _summary(tally: _Tally, scenes: int) -> dict[str, Any]:
         "mae_pct_depth_cue": cue_mae("fill_depth_cue"),
         "ms_per_bottle": float(np.median(ms_profile)) if ms_profile else math.nan,
         "ms_per_bottle_hough": float(np.median(ms_hough)) if ms_hough else math.nan,
-        **_opaque_summary(per_bottle),
+        **_unknown_summary(per_bottle),
         "by_family": _by_family(per_bottle),
     }
 
 
 def _by_family(per_bottle: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Per bottle family: how many were measured and the default method's MAE (points)."""
+    """Per bottle family: how many were measured, how many of those the default method
+    answered unknown, and its MAE (points) over the ones it gave a number (NaN: none)."""
     out: dict[str, dict[str, Any]] = {}
     for kind in sorted({b["kind"] for b in per_bottle}):
-        errs = [abs(b["error_pct"]) for b in per_bottle if b["kind"] == kind]
-        out[kind] = {"bottles": len(errs), "mae_pct": float(np.mean(errs))}
+        family = [b for b in per_bottle if b["kind"] == kind]
+        errs = _errors(family)
+        out[kind] = {
+            "bottles": len(family),
+            "fill_visible": bool(family[0]["fill_visible"]),
+            "unknown": len(family) - len(errs),
+            "mae_pct": float(errs.mean()) if len(errs) else math.nan,
+        }
     return out
 
 
-def _opaque_summary(per_bottle: list[dict[str, Any]]) -> dict[str, Any]:
-    """Bottles whose liquid cannot be seen: the meter should say it does not know (a
-    confidence below :data:`UNKNOWN_CONFIDENCE`); how often it did, and its clear-bottle MAE."""
+def _unknown_summary(per_bottle: list[dict[str, Any]]) -> dict[str, Any]:
+    """Unknown answers. An opaque bottle's liquid cannot be seen, so it should be reported
+    unknown (``opaque_unknown_rate``); a see-through bottle should get a number, and each
+    unknown one counts against the meter (``clear_unknown_rate``), so that answering unknown
+    does not buy a lower MAE. ``mae_pct_fill_visible`` is over the see-through bottles that
+    got a number (``clear_measured`` of ``clear_bottles``); ``mae_pct_opaque`` over the
+    opaque bottles that got one all the same (NaN: none did)."""
     opaque = [b for b in per_bottle if not b["fill_visible"]]
-    clear = [abs(b["error_pct"]) for b in per_bottle if b["fill_visible"]]
-    unknown = sum(b["confidence"] < UNKNOWN_CONFIDENCE for b in opaque)
+    clear = [b for b in per_bottle if b["fill_visible"]]
+    clear_err, opaque_err = _errors(clear), _errors(opaque)
     return {
-        "mae_pct_fill_visible": float(np.mean(clear)) if clear else math.nan,
+        "mae_pct_fill_visible": float(clear_err.mean()) if len(clear_err) else math.nan,
+        "clear_bottles": len(clear),
+        "clear_measured": len(clear_err),
+        "clear_unknown_rate": 1.0 - len(clear_err) / len(clear) if clear else math.nan,
         "opaque_bottles": len(opaque),
-        "opaque_unknown_rate": unknown / len(opaque) if opaque else math.nan,
+        "opaque_unknown_rate": 1.0 - len(opaque_err) / len(opaque) if opaque else math.nan,
+        "mae_pct_opaque": float(opaque_err.mean()) if len(opaque_err) else math.nan,
     }
 
 
@@ -335,10 +363,12 @@ def evaluate_liquid(
     """Both liquid methods on >= ``n`` visible bottles; ``{"summary": ..., "per_bottle": ...}``.
 
     Errors are in percentage points of fill against ``ObjectSpec.fill`` (liquid height over
-    inner body height). ``summary``: ``mae_pct`` (default method), ``mae_pct_hough``,
-    ``bottles`` measured, ``skipped`` (not visible enough), ``scenes``, p90 and max errors,
-    the MAE of the default method's colour and depth cues alone, and the median milliseconds
-    per bottle of each method.
+    inner body height). ``summary``: ``mae_pct`` (default method, every bottle it gave a
+    number), ``mae_pct_hough`` (see-through bottles), ``bottles`` measured, ``skipped`` (not
+    visible enough), ``scenes``, p90 and max errors (see-through bottles with a number), the
+    MAE of the default method's colour and depth cues alone, the median milliseconds per
+    bottle of each method, the unknown answers (:func:`_unknown_summary`) and the figures
+    per bottle family (:func:`_by_family`).
     """
     if n < 1:
         raise ValueError("n must be at least 1")

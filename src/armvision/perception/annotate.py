@@ -60,9 +60,13 @@ def draw_containers(
         cv2.rectangle(image, (x0, y0), (x1, y1), colour, 2)
         text = f"{det.label} {det.score:.2f}"
         if level is not None:
-            text += f" fill {100 * level.fill:.0f}%"
-            row = round(level.level_row)
-            cv2.line(image, (x0, row), (x1, row), (255, 0, 255), 2, cv2.LINE_AA)
+            fill, level_row = level.fill, level.level_row
+            if fill is None or level_row is None:
+                text += " fill unknown"  # the liquid cannot be seen (an opaque wall, ...)
+            else:
+                text += f" fill {100 * fill:.0f}%"
+                row = round(level_row)
+                cv2.line(image, (x0, row), (x1, row), (255, 0, 255), 2, cv2.LINE_AA)
         _text(image, text, (x0, y0 - 4), colour)
 
 

@@ -71,25 +71,29 @@ Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
 Method = Literal["profile", "hough"]
 METHODS = ("profile", "hough")
+#: How :attr:`LiquidLevel.unknown` begins when the wall hides the liquid.
+OPAQUE = "opaque"
 #: The camera's up (-y in the optical frame): the table's normal faces roughly this way.
 _UP_CAM = np.array([0.0, -1.0, 0.0])
 
 
 @dataclass(frozen=True, eq=False)
 class LiquidLevel:
-    """One liquid-level measurement.
+    """One liquid-level measurement, or the meter's statement that it cannot make one.
 
     ``fill`` 0..1: liquid height over the container's inner body height (``profile``; the
-    simulator's ``ObjectSpec.fill``) or over the box height (``hough``, the paper's definition).
-    ``level_row`` the image row of the liquid surface (on the bottle's axis for ``profile``);
-    ``confidence`` 0..1; ``colour`` the liquid's median RGB, None when empty; ``debug`` an RGB
-    crop of the box with the measurement drawn. ``level_m`` and ``body_height_m`` (``profile``
-    only): the liquid surface and the body top above the table, metres; ``level_colour_m``
-    and ``level_depth_m`` what each cue alone said (None: no depth evidence).
+    simulator's ``ObjectSpec.fill``) or over the box height (``hough``, the paper's definition);
+    None when the level is **unknown**: ``unknown`` then says why (an opaque wall, a body
+    hidden or outside the image) and ``confidence`` is 0. ``level_row`` the image row of the
+    liquid surface (on the bottle's axis for ``profile``; None when unknown); ``confidence``
+    0..1; ``colour`` the liquid's median RGB, None when empty or unknown; ``debug`` an RGB crop
+    of the box with the measurement drawn. ``level_m`` and ``body_height_m`` (``profile``
+    only): the liquid surface and the body top (the shoulder) above the table, metres;
+    ``level_colour_m`` and ``level_depth_m`` what each cue alone said (None: no evidence).
     """
 
-    fill: float
-    level_row: float
+    fill: float | None
+    level_row: float | None
     confidence: float
     colour: tuple[int, int, int] | None
     method: str
@@ -98,6 +102,17 @@ class LiquidLevel:
     body_height_m: float | None = None
     level_colour_m: float | None = None
     level_depth_m: float | None = None
+    unknown: str | None = None
+
+    @property
+    def known(self) -> bool:
+        """Whether the meter read a level (``fill`` is a number)."""
+        return self.fill is not None
+
+    @property
+    def opaque(self) -> bool:
+        """Unknown because the wall hides the liquid (no other view will show it)."""
+        return self.unknown is not None and self.unknown.startswith(OPAQUE)
 
 
 @dataclass(frozen=True)
@@ -301,6 +316,29 @@ class _Frame3D:
         )
 
 
+@dataclass(frozen=True)
+class _Rays:
+    """The lines of sight of a bottle's box, one entry per pixel, against its cylinders.
+
+    ``s_low``: the lowest height (above the table, never below the base) of the ray's chord
+    through the liquid's cylinder (nan where it misses it); ``s_axis``: the height where it
+    passes the axis closest; ``miss``: that closest distance over the radius; ``valid``: the
+    pixel has depth; ``on_bottle``: its point lies on or in the bottle (within the radius +
+    ``surface_tol``, above the base, below the top); ``before``: it lies nearer than the
+    bottle's front by ``occluder_m`` (something in front); ``hits_liquid_cylinder``.
+    """
+
+    s_low: Array
+    height: Array
+    s_axis: Array
+    miss: Array
+    valid: NDArray[np.bool_]
+    on_bottle: NDArray[np.bool_]
+    before: NDArray[np.bool_]
+    at_wall: NDArray[np.bool_]
+    hits_liquid_cylinder: NDArray[np.bool_]
+
+
 class LiquidLevelMeter:
     """Measures the liquid level of upright bottles; every tuning value a named argument.
 
@@ -328,7 +366,17 @@ class LiquidLevelMeter:
         colour_threshold: float = 30.0,
         agree_tol: float = 0.008,
         min_depth_points: int = 25,
-        edge_threshold: float = 8.0,
+        edge_threshold: float = 5.0,
+        liquid_share: float = 0.6,
+        opaque_share: float = 0.7,
+        min_body_seen: float = 0.6,
+        surface_tol: float = 0.005,
+        occluder_m: float = 0.015,
+        wall_band: float = 0.003,
+        edge_band_in: float = 0.0035,
+        edge_band_out: float = 0.004,
+        gap_m: float = 0.008,
+        min_body_fraction: float = 0.3,
         seed: int = 0,
     ) -> None:
         if method not in METHODS:
@@ -339,6 +387,12 @@ class LiquidLevelMeter:
         self.step_m, self.colour_threshold = step_m, colour_threshold
         self.agree_tol, self.min_depth_points = agree_tol, min_depth_points
         self.edge_threshold = edge_threshold
+        self.liquid_share, self.opaque_share = liquid_share, opaque_share
+        self.min_body_seen, self.surface_tol = min_body_seen, surface_tol
+        self.occluder_m = occluder_m
+        self.wall_band, self.gap_m = wall_band, gap_m
+        self.min_body_fraction = min_body_fraction
+        self.edge_band_in, self.edge_band_out = edge_band_in, edge_band_out
         self._rng = np.random.default_rng(seed)
 
     def measure(
@@ -354,9 +408,9 @@ class LiquidLevelMeter:
 
     # ---------------------------------------------------------------- profile steps
 
-    def _bottle_frame(self, frame: RGBDFrame, box: Box, geometry: ContainerGeometry) -> _Frame3D:
+    def _table(self, frame: RGBDFrame, box: Box) -> tuple[Array, float]:
+        """The table plane (up, offset: ``up . p + offset = 0``) from depth around the box."""
         intr = frame.intrinsics
-        fbox = box
         x0, y0, x1, y1 = (round(v) for v in box)
         bw, bh = x1 - x0, y1 - y0
         H, W = frame.depth.shape
@@ -392,7 +446,22 @@ class LiquidLevelMeter:
                 "no table plane in the depth around the container: the container must stand"
                 " on a flat surface the camera sees (or use method='hough')"
             )
-        up, offset = table.normal, table.offset
+        return table.normal, float(table.offset)
+
+    def _bottle_frame(
+        self,
+        frame: RGBDFrame,
+        box: Box,
+        geometry: ContainerGeometry,
+        table: tuple[Array, float],
+        body_fraction: float,
+    ) -> _Frame3D:
+        """The bottle standing on ``table``: foot, axis, radius and height (see the module's
+        step 2); the box fit models the body as ``body_fraction`` of the height."""
+        intr = frame.intrinsics
+        x0, y0, x1, y1 = (round(v) for v in box)
+        bw = x1 - x0
+        up, offset = table
         # The camera's foot on the table; "away" is horizontal from it towards the bottle.
         cam_foot = -offset * up
         if geometry.centre_cam is not None:
@@ -407,13 +476,14 @@ class LiquidLevelMeter:
             ray = _ray(intr, 0.5 * (x0 + x1 - 1), y0 + 0.5)
             q = ray * ((foot - cam_foot) @ foot / ((foot - cam_foot) @ ray))
             top = float(up @ (q - foot))
-        free = (
-            geometry.centre_cam is None,
-            geometry.radius is None,
-            geometry.height is None,
-        )
+        # The radius is always fitted to the box (a given one is the first guess): an object
+        # detector fits the circle of what returns depth, which for a clear bottle is its
+        # liquid or cap, short of the wall whose silhouette the box and the shoulder follow.
+        free = (geometry.centre_cam is None, True, geometry.height is None)
         if any(free):
-            foot, radius, top = self._fit_box(intr, fbox, up, offset, foot, radius, top, free)
+            foot, radius, top = self._fit_box(
+                intr, box, up, offset, foot, radius, top, free, body_fraction
+            )
         away = foot - cam_foot
         away -= (away @ up) * up
         away /= np.linalg.norm(away)
@@ -435,6 +505,7 @@ class LiquidLevelMeter:
         radius: float,
         top: float,
         free: tuple[bool, bool, bool],
+        body_fraction: float,
     ) -> tuple[Array, float, float]:
         """Foot, radius and height of an upright bottle whose projection fills ``box``.
 
@@ -452,7 +523,7 @@ class LiquidLevelMeter:
             """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection."""
             a, b, r, h = params.T[:, :, None, None]
             centre = foot + a * e1 + b * e2  # (M, 1, 3)
-            pts = bottle_outline(centre, up, r, h, self.body_fraction)  # (M, 72, 3)
+            pts = bottle_outline(centre, up, r, h, body_fraction)  # (M, 72, 3)
             uv = project(intr, pts.reshape(-1, 3)).reshape(len(params), -1, 2)
             return pixel_box(uv)
 
@@ -491,49 +562,99 @@ class LiquidLevelMeter:
         to_cam = -bf.points(s, 0.0)
         return (to_cam @ bf.up) / np.maximum(-(to_cam @ bf.away), 1e-9)
 
-    def _body_top(self, frame: RGBDFrame, bf: _Frame3D, s: Array) -> tuple[float, bool]:
-        """Height of the shoulder: the top of the body's vertical silhouette edges.
+    def _body_top(
+        self, frame: RGBDFrame, bf: _Frame3D, s: Array, floor: float
+    ) -> tuple[float, bool]:
+        """Height of the shoulder: the top of the body's straight silhouette edges.
 
-        The body's top rim is an ellipse like the liquid's surface, so columns inside the
-        radius are shifted by ``k sqrt(r^2 - t^2)`` to make it a straight row. A row belongs
-        to the body while either side shows an edge at ``|t| ~ r`` clearly stronger than the
-        background's edges just outside; either side, because a clear wall in front of a
-        similar background shows almost no edge. Returns (height, found).
+        In the rectified strip (columns inside the radius shifted down by
+        ``k sqrt(r^2 - t^2)``, as the body's top rim is an ellipse like the liquid's surface)
+        the colour step across ``t`` (RGB distance between neighbouring columns) is found on
+        each side between ``r - edge_band_in`` and ``r + edge_band_out``: there lie the outer
+        wall's silhouette and, below the level, the liquid's (a wall's thickness inside). The
+        strongest step 1 mm either side of that band must fall inside it (a step rising
+        towards the band's end belongs to a shoulder or a neck) and beat the background's
+        steps further out (1.2-1.5 r, median) by ``edge_threshold``. A side counts if it
+        shows the wall on at least 40 % of the lowest third of the rows (a clear wall before a
+        background of its own colour shows none), and a row is body where every counted side
+        shows it: background edges rarely line up on both sides at the bottle's radius. The
+        body top is the best single step from body rows (below) to the rest
+        (:func:`_step_split`) between 8 mm above the table and 10 mm below the top. Returns
+        (height, found); with no side showing the wall, ``body_fraction`` of the height, a
+        prior, and found False.
         """
         r = bf.radius
-        t = np.linspace(-1.5 * r, 1.5 * r, 61)
+        step = 0.5e-3
+        t = np.arange(-1.5 * r, 1.5 * r + step, step)
         k = self._depression_tan(bf, s)[:, None]
         shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
-        grey = self._strip(frame, bf, s, t, shift).mean(axis=2)
-        gt = np.abs(np.diff(grey, axis=1))  # edges across t
+        strip = self._strip(frame, bf, s, t, shift)
+        gt = np.linalg.norm(np.diff(strip, axis=1), axis=2)  # colour edges across t
         tc = 0.5 * (t[1:] + t[:-1])
-        evidence = []
-        for side in (-1.0, 1.0):
-            wall = (side * tc > 0.75 * r) & (side * tc < 1.1 * r)
-            out = side * tc > 1.2 * r
-            evidence.append(gt[:, wall].max(axis=1) - np.median(gt[:, out], axis=1))
-        edge = np.maximum(*evidence)
-        # The shoulder is looked for within body_fraction +- body_fraction_range of the height:
-        # background edges seen through the neck or a faint wall otherwise move it anywhere.
-        lo = np.searchsorted(s, (self.body_fraction - self.body_fraction_range) * bf.top)
-        hi = np.searchsorted(s, (self.body_fraction + self.body_fraction_range) * bf.top)
-        edge_rows = edge[lo:hi] > self.edge_threshold
-        if hi - lo < 5 or edge_rows.mean() < 0.05:  # no body edge seen at all: use the prior
+        start = int(np.searchsorted(s, self.base + 0.005))
+        stop = int(np.searchsorted(s, bf.top - 0.01))
+        if stop - start < 10:
             return self.body_fraction * bf.top, False
-        # Body rows (edges) below the shoulder, neck rows (none at |t| ~ r) above.
-        k_split, _ = _step_split(edge_rows)
-        return float(s[lo + max(k_split - 1, 0)]), True
+        lowest = slice(start, start + (stop - start) // 3)
+        first = max(int(np.searchsorted(s, floor)), start)
+        body_row = np.ones(len(s), bool)
+        counted = 0
+        for side in (-1.0, 1.0):
+            inward = side * tc
+            lo, hi = r - self.edge_band_in, r + self.edge_band_out
+            wide = np.flatnonzero((inward > lo - 0.001) & (inward < hi + 0.001))
+            best = wide[np.argmax(gt[:, wide], axis=1)]
+            inside = (inward[best] > lo) & (inward[best] < hi)
+            out = (inward > 1.2 * r) & (inward < 1.5 * r)
+            strength = gt[np.arange(len(s)), best] - np.median(gt[:, out], axis=1)
+            edged = inside & (strength > self.edge_threshold)
+            if edged[lowest].mean() >= 0.4:
+                body_row &= edged
+                counted += 1
+        if counted == 0:
+            return self.body_fraction * bf.top, False
+        if stop - first < 4:
+            return float(s[min(first, len(s) - 1)]), True
+        k_split, _ = _step_split(body_row[first:stop])
+        return float(s[first + max(k_split - 1, 0)]), True
 
     def _profile(
         self, frame: RGBDFrame, box: ArrayLike, geometry: ContainerGeometry
     ) -> LiquidLevel:
         ibox = _check_inputs(frame, box)
         x0, y0, x1, y1 = (float(v) for v in np.ravel(box))
-        bf = self._bottle_frame(frame, (x0, y0, x1, y1), geometry)
-        r, r_liq = bf.radius, max(bf.radius - self.wall, 0.5 * bf.radius)
+        fbox = (x0, y0, x1, y1)
+        table = self._table(frame, fbox)
+        bf = self._bottle_frame(frame, fbox, geometry, table, self.body_fraction)
+        r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
+        rays = self._rays(frame, ibox, bf, r_liq)
+        # A first depth level, the whole bottle searched: the body's top is not below it. Not
+        # when it reaches the top: then no ray passed the bottle anywhere, the mark of an
+        # opaque wall (or a view the depth cannot tell), which says nothing about the body.
+        first = self._depth_level(rays, bf.top - 0.01)
+        floor = self.min_body_fraction * bf.top
+        if first is not None and first[0] < bf.top - 0.02:
+            floor = max(floor, first[0] - 0.003)
         s = np.arange(0.0, bf.top, self.step_m)
-        body, shoulder_found = self._body_top(frame, bf, s)
+        body, shoulder_found = self._body_top(frame, bf, s, floor)
+        fraction = body / bf.top
+        if shoulder_found and abs(fraction - self.body_fraction) > 0.02:
+            # The box fit modelled the body as body_fraction of the height; with the body's
+            # own top, fit again (a lower shoulder leans less: the radius changes) and look
+            # for the shoulder once more with that radius.
+            bf = self._bottle_frame(frame, fbox, geometry, table, fraction)
+            r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
+            rays = self._rays(frame, ibox, bf, r_liq)
+            s = np.arange(0.0, bf.top, self.step_m)
+            body, shoulder_found = self._body_top(frame, bf, s, floor)
+        r = bf.radius
         body = float(np.clip(body, self.base + 0.01, bf.top))
+        unknown = self._why_unseen(frame, bf, body, rays)
+        if unknown is not None:
+            debug = self._debug(frame, ibox, bf, None, body, None)
+            return LiquidLevel(
+                None, None, 0.0, None, "profile", debug, body_height_m=body, unknown=unknown
+            )
         s_body = s[s <= body]
         # Colour cue: inner columns, unwarped by the surface ellipse, against the background
         # beside the bottle in the same row (unshifted: beside the wall nothing is elliptic).
@@ -547,24 +668,21 @@ class LiquidLevelMeter:
         s_rows = s_body[above_base]
         profile = np.median(inner - bg[:, None, :], axis=1)[above_base]  # (N, 3)
         level_c, q_c = self._colour_step(s_rows, profile)
-        # Depth cue: points inside the cylinder, above the base, below the shoulder.
-        level_d, n_d, see_through = self._depth_level(frame, ibox, bf, r_liq, body)
+        # Depth cue: the step between rays that meet liquid and rays that pass the bottle.
+        depth_cue = self._depth_level(rays, body)
         # Fuse. Depth is metric and not fooled by colours, so it leads where it has evidence;
         # colour refines it when they agree and stands alone where depth has no data.
-        if n_d >= self.min_depth_points:
+        if depth_cue is not None:
+            level_d, q_d = depth_cue
             if abs(level_d - level_c) <= self.agree_tol:
-                level, confidence = 0.7 * level_d + 0.3 * level_c, q_c
+                level, confidence = 0.7 * level_d + 0.3 * level_c, q_d * (0.8 + 0.2 * q_c)
             else:
-                level, confidence = level_d, 0.5
-        elif see_through > 0.8:
-            # Depth sees the background through the lower body: empty (a clear liquid that the
-            # IR passes would look the same: then the colour cue alone could tell).
-            level = self.base
-            confidence = see_through * (1.0 if level_c <= self.base + 0.005 else 0.6)
+                level, confidence = level_d, 0.6 * q_d
         else:
-            level, confidence = level_c, 0.8 * q_c
+            level, confidence = level_c, 0.5 * q_c
         if not shoulder_found:
             confidence *= 0.7
+        level = float(np.clip(level, self.base, body))
         fill = float(np.clip((level - self.base) / (body - self.base), 0.0, 1.0))
         level_px = project(frame.intrinsics, bf.points(np.array([level, body]), 0.0))
         below = inner[(s_body < level - 0.003) & (s_body > self.base)]
@@ -580,7 +698,7 @@ class LiquidLevelMeter:
             level_m=float(level),
             body_height_m=float(body),
             level_colour_m=level_c,
-            level_depth_m=level_d if n_d >= self.min_depth_points else None,
+            level_depth_m=None if depth_cue is None else depth_cue[0],
         )
 
     def _colour_step(self, s: Array, profile: Array) -> tuple[float, float]:
@@ -617,76 +735,183 @@ class LiquidLevelMeter:
             return float(s[-1]) + self.step_m, 0.3
         return self.base, 0.3
 
-    def _depth_level(
-        self,
-        frame: RGBDFrame,
-        box: tuple[int, int, int, int],
-        bf: _Frame3D,
-        r_liq: float,
-        body: float,
-    ) -> tuple[float, int, float]:
-        """Depth cue: (highest liquid point above the table, points supporting it, see-through).
-
-        Liquid points: inside the cylinder, above the base, below the shoulder. See-through:
-        of the valid depth pixels whose line of sight crosses the lower body's middle (on the
-        axis plane: |t| < 0.6 r, base + 5 mm < s < 60 % of the body), the fraction that lie
-        outside the liquid's volume, i.e. the camera sees through an empty part.
-        """
+    def _rays(
+        self, frame: RGBDFrame, box: tuple[int, int, int, int], bf: _Frame3D, r_liq: float
+    ) -> _Rays:
+        """Every pixel of the box as a line of sight through the bottle's cylinders, with
+        what its depth says (see :class:`_Rays`)."""
         x0, y0, x1, y1 = box
-        depth = frame.depth[y0:y1, x0:x1]
-        vv, uu = np.nonzero(depth > 0)
-        if len(vv) == 0:
-            return 0.0, 0, 0.0
-        pts = deproject(
-            frame.intrinsics, np.column_stack([uu + x0, vv + y0]).astype(float), depth[vv, uu]
+        vv, uu = np.mgrid[y0:y1, x0:x1]
+        uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(float)
+        d = deproject(frame.intrinsics, uv, np.ones(len(uv)))  # (x, y, 1): depth z is lambda
+        z = frame.depth[y0:y1, x0:x1].ravel().astype(float)
+        da, dl, du = d @ bf.away, d @ bf.lateral, d @ bf.up
+        fa, fl, fu = bf.foot @ bf.away, bf.foot @ bf.lateral, bf.foot @ bf.up
+        # Horizontal offset from the axis along the ray: (z da - fa, z dl - fl).
+        qa = da**2 + dl**2
+        qb = -2.0 * (da * fa + dl * fl)
+        # The ray's closest approach to the axis (horizontally), as a fraction of the radius.
+        z_near = -qb / (2.0 * qa)
+        miss = np.hypot(z_near * da - fa, z_near * dl - fl)
+
+        def chord(radius: float) -> tuple[Array, Array]:
+            disc = qb**2 - 4.0 * qa * (fa**2 + fl**2 - radius**2)
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            hit = disc > 0
+            return (
+                np.where(hit, (-qb - sq) / (2.0 * qa), np.nan),
+                np.where(hit, (-qb + sq) / (2.0 * qa), np.nan),
+            )
+
+        z_front, _ = chord(bf.radius)
+        zl_in, zl_out = chord(r_liq)
+        h_in, h_out = zl_in * du - fu, zl_out * du - fu
+        s_low = np.maximum(np.fmin(h_in, h_out), self.base)
+        valid = z > 0
+        height = np.where(valid, z * du - fu, np.nan)
+        radial = np.hypot(z * da - fa, z * dl - fl)
+        on_bottle = (
+            valid
+            & (radial < bf.radius + self.surface_tol)
+            & (height > self.base + 0.002)
+            & (height < bf.top + self.surface_tol)
         )
-        rel = pts - bf.foot
-        height = rel @ bf.up
-        radial = np.hypot(rel @ bf.away, rel @ bf.lateral)
-        # 4 mm slack: depth noise at ~0.6 m is ~1.5 mm RMS (Intel's model) plus the axis error.
-        inside = (radial < r_liq + 0.004) & (height > self.base + 0.002) & (height < body + 0.004)
-        # Where each pixel's line of sight crosses the axis plane, and whether the point is
-        # beyond the bottle's back.
-        rays = pts / pts[:, 2:3]
-        lam = (bf.foot @ bf.away) / (rays @ bf.away)
-        on_plane = rays * lam[:, None] - bf.foot
-        s_ray, t_ray = on_plane @ bf.up, on_plane @ bf.lateral
-        middle = (
-            (np.abs(t_ray) < 0.6 * bf.radius) & (s_ray > self.base + 0.005) & (s_ray < 0.6 * body)
+        front = np.nan_to_num(z_front, nan=np.inf)
+        before = valid & ~on_bottle & (z < front - self.occluder_m)
+        # A point within ``wall_band`` of the outer front surface may be the wall itself.
+        at_wall = on_bottle & (z < front + self.wall_band)
+        # Where the line of sight crosses the vertical plane through the axis facing the camera.
+        s_axis = z_near * du - fu
+        return _Rays(
+            s_low=s_low,
+            height=height,
+            s_axis=s_axis,
+            miss=miss / bf.radius,
+            valid=valid,
+            on_bottle=on_bottle,
+            before=before,
+            at_wall=at_wall,
+            hits_liquid_cylinder=np.isfinite(zl_in),
         )
-        # Through an empty bottle the camera sees the table behind it or, through a clear
-        # bottom, under it: anything but the liquid's volume.
-        past = ~((radial < r_liq + 0.004) & (height > self.base + 0.002))
-        see_through = float(past[middle].mean()) if middle.sum() >= 10 else 0.0
-        h = height[inside]
-        if len(h) < self.min_depth_points:
-            return 0.0, len(h), see_through
-        # The liquid's top surface faces the camera, so its points sit at the level; the 98th
-        # percentile ignores a few noisy points above it.
-        return float(np.percentile(h, 98.0)), len(h), see_through
+
+    def _why_unseen(self, frame: RGBDFrame, bf: _Frame3D, body: float, rays: _Rays) -> str | None:
+        """Why the liquid cannot be seen in this view, or None if it can.
+
+        **Outside the image**: less than ``min_body_seen`` of the body's axis plane projects
+        into the image. **Hidden**: of the lines of sight through the body (within 0.8 r of
+        the axis, base to shoulder), more than ``1 - min_body_seen`` end on something nearer
+        than the bottle's front by ``occluder_m``. **Opaque**: the wall returns depth at the
+        bottle's own surface over at least ``opaque_share`` of the lines of sight through the
+        body *and* through the lower half of what is above the shoulder (within 0.25 r of the
+        axis: the neck). A clear wall returns depth on a few pixels only (none in MuJoCo's
+        plain render; ~10 % good and ~6 % wrong on ClearGrasp's real D435 frames, the
+        simulator's camera model), a liquid only below its level and never in the empty neck,
+        so only a bottle whose wall the camera cannot see through is dense in both.
+        """
+        intr = frame.intrinsics
+        ss = np.linspace(self.base, body, 12)
+        tt = np.linspace(-bf.radius, bf.radius, 7)
+        uv = project(intr, bf.points(ss[:, None], tt[None, :]).reshape(-1, 3))
+        in_image = (
+            (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        )
+        seen = float(in_image.mean())
+        if seen < self.min_body_seen:
+            return f"only {100 * seen:.0f} % of the bottle's body is inside the image"
+        through_body = (rays.miss < 0.8) & (rays.s_axis > self.base) & (rays.s_axis < body)
+        if through_body.sum() < 20:
+            return "the bottle's body covers too few pixels to read a level"
+        hidden = float(rays.before[through_body].mean())
+        if hidden > 1.0 - self.min_body_seen:
+            return f"{100 * hidden:.0f} % of the bottle's body is hidden by something in front"
+        body_rays = (
+            (rays.miss < 0.5) & (rays.s_axis > self.base + 0.01) & (rays.s_axis < body - 0.005)
+        )
+        upper_top = body + 0.004 + 0.5 * max(bf.top - body - 0.004, 0.0)
+        neck_rays = (rays.miss < 0.25) & (rays.s_axis > body + 0.004) & (rays.s_axis < upper_top)
+        if body_rays.sum() >= 20 and neck_rays.sum() >= 10:
+            dense_body = float(rays.on_bottle[body_rays].mean())
+            dense_neck = float(rays.on_bottle[neck_rays].mean())
+            if min(dense_body, dense_neck) >= self.opaque_share:
+                return (
+                    f"{OPAQUE}: the wall returns depth on {100 * dense_body:.0f} % of the body and"
+                    f" {100 * dense_neck:.0f} % of the neck, so the liquid cannot be seen"
+                )
+        return None
+
+    def _depth_level(self, rays: _Rays, body: float) -> tuple[float, float] | None:
+        """Depth cue: the liquid level where lines of sight stop meeting liquid, and its quality.
+
+        Each line of sight within 0.7 of the liquid's radius from the axis is placed at the
+        lowest height its chord through the liquid's cylinder reaches (``s_low``, never below
+        the base): had the liquid been above that height, the ray would have ended on it. So
+        a ray whose depth lands on the bottle (liquid, or a clear wall that returned depth)
+        with ``s_low`` below the level is expected, and one that passes beyond the bottle (the
+        table or the room behind it, or under a clear bottom) says the liquid is below its
+        ``s_low``. Per ``step_m`` of height the share of rays on the bottle is taken; rows
+        where it reaches ``liquid_share`` are liquid, and the level is the best single step
+        from liquid rows (below) to empty ones (:func:`_step_split`). The share, not every
+        ray, because a clear wall returns depth on some pixels whatever is behind it (at most
+        a third of the valid ones on the simulated D435). Quality: the share of rows the step
+        explains. None when fewer than ``min_depth_points`` rays have depth.
+        """
+        use = (
+            rays.hits_liquid_cylinder
+            & (rays.miss < 0.7)
+            & rays.valid
+            & ~rays.before
+            & ~rays.at_wall
+            & (rays.s_low < body)
+        )
+        if use.sum() < self.min_depth_points:
+            return None
+        n_rows = max(math.ceil((body - self.base) / self.step_m), 1)
+        on = rays.on_bottle[use]
+        # A point on the bottle above the body is the wall of a shoulder or a neck, no
+        # evidence of liquid below it.
+        keep = ~on | (rays.height[use] < body + 0.002)
+        at = rays.s_low[use]
+        row = np.clip(((at[keep] - self.base) / self.step_m).astype(int), 0, n_rows - 1)
+        n_all = np.bincount(row, minlength=n_rows)
+        n_on = np.bincount(row, weights=on[keep].astype(float), minlength=n_rows)
+        known = np.flatnonzero(n_all >= 2)
+        if len(known) < 4:
+            return None
+        is_liquid = n_on[known] >= self.liquid_share * n_all[known]
+        k, cost = _step_split(is_liquid)
+        if k == 0:
+            level = self.base
+        elif k == len(known):
+            level = body
+        else:  # between the last liquid row and the first empty one
+            level = self.base + self.step_m * 0.5 * (known[k - 1] + 1 + known[k])
+        return float(level), 1.0 - cost / len(known)
 
     def _debug(
         self,
         frame: RGBDFrame,
         box: tuple[int, int, int, int],
         bf: _Frame3D,
-        level: float,
+        level: float | None,
         body: float,
-        fill: float,
+        fill: float | None,
     ) -> NDArray[np.uint8]:
-        """The box crop with the liquid surface (ellipse, blue) and the body top (green)."""
+        """The box crop with the liquid surface (ellipse, blue; none when unknown) and the body
+        top (green)."""
         x0, y0, x1, y1 = box
         debug = np.ascontiguousarray(frame.color[y0:y1, x0:x1]).copy()
         ang = np.linspace(0.0, 2.0 * math.pi, 48)
-        for height, colour in ((level, (0, 90, 255)), (body, (0, 200, 0))):
+        rings = [(body, (0, 200, 0))]
+        if level is not None:
+            rings.insert(0, (level, (0, 90, 255)))
+        for height, colour in rings:
             ring = bf.points(
                 np.full_like(ang, height), bf.radius * np.cos(ang), bf.radius * np.sin(ang)
             )
             uv = project(frame.intrinsics, ring) - [x0, y0]
             cv2.polylines(debug, [np.round(uv).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
-        cv2.putText(
-            debug, f"{100 * fill:.0f}%", (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 0, 0), 1
-        )
+        text = "unknown" if fill is None else f"{100 * fill:.0f}%"
+        cv2.putText(debug, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 0, 0), 1)
         return debug
 
 

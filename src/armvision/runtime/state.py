@@ -144,53 +144,63 @@ class HealthMeter:
 class LiquidEstimate:
     """A tracked bottle's liquid level, averaged over its last measurements.
 
-    ``fill`` 0..1 (confidence-weighted mean), ``fill_std`` the spread of the measurements,
-    ``confidence`` their mean confidence, ``colour`` the median liquid RGB (None if it looked
-    empty), ``samples`` how many were averaged, ``t`` the newest one's frame time, ``latest``
-    the newest measurement itself.
+    ``fill`` 0..1 (confidence-weighted mean of the measurements that read a level), ``fill_std``
+    their spread; both None when every measurement of the window was **unknown** (the meter
+    could not see the liquid: an opaque wall, a hidden body), ``unknown`` then says why (the
+    newest one's reason). ``confidence`` the mean confidence of all the measurements (an
+    unknown one counts 0), ``colour`` the median liquid RGB (None if it looked empty),
+    ``samples`` how many were averaged, ``unknown_samples`` how many of the window were
+    unknown, ``t`` the newest one's frame time, ``latest`` the newest measurement itself.
     """
 
     track_id: int
-    fill: float
-    fill_std: float
+    fill: float | None
+    fill_std: float | None
     confidence: float
     colour: tuple[int, int, int] | None
     samples: int
     t: float
     latest: LiquidLevel = field(repr=False)
+    unknown_samples: int = 0
+    unknown: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "track_id": self.track_id,
-            "fill": round(self.fill, 4),
-            "fill_std": round(self.fill_std, 4),
+            "fill": None if self.fill is None else round(self.fill, 4),
+            "fill_std": None if self.fill_std is None else round(self.fill_std, 4),
             "confidence": round(self.confidence, 3),
             "colour": None if self.colour is None else list(self.colour),
             "samples": self.samples,
+            "unknown_samples": self.unknown_samples,
+            "unknown": self.unknown,
             "t": self.t,
         }
 
 
 def average_levels(track_id: int, levels: list[tuple[float, LiquidLevel]]) -> LiquidEstimate:
-    """Confidence-weighted average of (frame time, measurement) pairs, oldest first."""
-    fills = np.array([lv.fill for _, lv in levels])
-    conf = np.array([max(lv.confidence, 1e-3) for _, lv in levels])
+    """Confidence-weighted average of (frame time, measurement) pairs, oldest first; the
+    unknown measurements (``fill`` None) are left out of the average and counted."""
+    known = [lv for _, lv in levels if lv.fill is not None]
+    unknown = [lv for _, lv in levels if lv.fill is None]
+    mean_conf = float(np.mean([lv.confidence for _, lv in levels]))
+    newest_t, newest = levels[-1]
+    if not known:
+        return LiquidEstimate(
+            track_id, None, None, mean_conf, None, 0, newest_t, newest, len(unknown),
+            unknown[-1].unknown or "the liquid could not be seen",
+        )  # fmt: skip
+    fills = np.array([lv.fill for lv in known], dtype=float)
+    conf = np.array([max(lv.confidence, 1e-3) for lv in known])
     fill = float(np.average(fills, weights=conf))
     std = float(math.sqrt(np.average((fills - fill) ** 2, weights=conf)))
-    colours = [lv.colour for _, lv in levels if lv.colour is not None]
+    colours = [lv.colour for lv in known if lv.colour is not None]
     colour: tuple[int, int, int] | None = None
-    if len(colours) * 2 > len(levels):
+    if len(colours) * 2 > len(known):
         r, g, b = (int(c) for c in np.median(np.array(colours), axis=0))
         colour = (r, g, b)
     return LiquidEstimate(
-        track_id,
-        fill,
-        std,
-        float(np.mean([lv.confidence for _, lv in levels])),
-        colour,
-        len(levels),
-        levels[-1][0],
-        levels[-1][1],
+        track_id, fill, std, mean_conf, colour, len(known), newest_t, newest, len(unknown)
     )
 
 

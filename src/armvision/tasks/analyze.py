@@ -12,8 +12,11 @@
    them are averaged, weighted by confidence
    (:func:`~armvision.runtime.state.average_levels`). The view is **poor** when fewer come
    within :func:`measure_window` seconds, when their mean confidence is below
-   ``analyze.min_confidence``, or when the bottle's median box is shorter than
-   ``analyze.min_box_height_px`` pixels.
+   ``analyze.min_confidence``, when the meter could read no level in any of them (it says
+   ``unknown``: a hidden body, an opaque wall; unknown frames count confidence 0 and are left
+   out of the fill), or when the bottle's median box is shorter than
+   ``analyze.min_box_height_px`` pixels. A bottle whose wall hides its liquid in every frame
+   is not presented: no view would show it.
 3. **Presented** (poor view and ``analyze.allow_pick``): the bottle is grasped and lifted
    (:func:`~armvision.tasks.grab.grab`), carried above everything else on the table, stood on
    the table at the :func:`~armvision.tasks.spots.presentation_spot`, released, and the
@@ -101,8 +104,9 @@ class AnalyzeResult:
     """What the analysis found. ``ok`` when a trustworthy measurement was made.
 
     ``fill`` 0..1 of the body's inner height (the meter's definition), ``fill_std`` the
-    confidence-weighted spread of the frames; ``colour`` the liquid's median RGB as seen (None
-    when it looked empty) and ``colour_name`` the nearest
+    confidence-weighted spread of the frames (both None when the liquid could not be seen in
+    any frame: ``reason`` says why, e.g. an opaque wall); ``colour`` the liquid's median RGB
+    as seen (None when it looked empty) and ``colour_name`` the nearest
     :data:`~armvision.tasks.colour.COLOUR_PALETTE` name;
     ``confidence`` the frames' mean confidence 0..1; ``frames`` how many were averaged;
     ``picked`` whether the bottle was picked and presented; ``position`` the bottle's centre
@@ -352,6 +356,8 @@ class _Analyze:
             return why
         est = samples.estimate(0)
         assert est is not None
+        if est.fill is None:
+            return f"the liquid cannot be seen in any of the {n} frames ({est.unknown})"
         if est.confidence < self.cfg.min_confidence:
             return f"mean confidence {est.confidence:.2f} < {self.cfg.min_confidence:.2f}"
         box_h = samples.box_height
@@ -374,6 +380,14 @@ class _Analyze:
         if poor is None:
             return self.result(
                 True, f"measured in place over {len(samples.levels)} frames", samples, "in place"
+            )
+        if samples.levels and all(level.opaque for _, level in samples.levels):
+            return self.result(
+                False,
+                f"the view in place is poor ({poor}): the bottle's wall hides its liquid, so "
+                "no view will show it; not picked",
+                samples,
+                "in place",
             )
         if not cfg.allow_pick:
             return self.result(

@@ -372,6 +372,7 @@ function renderHealth(health) {
 const rgb = (c) => `rgb(${c.map((v) => Math.round(Number(v) || 0)).join(',')})`;
 
 function fillText(liq) {
+  if (liq && !isNum(liq.fill) && liq.unknown) return 'unknown';
   if (!liq || !isNum(liq.fill)) return '—';
   const std = isNum(liq.fill_std) ? ` ± ${(liq.fill_std * 100).toFixed(0)}` : '';
   return `${(liq.fill * 100).toFixed(0)}${std} %`;
@@ -405,7 +406,8 @@ function renderBottleSelect(tracks) {
   const sel = $('bottle-select');
   const bottles = tracks.filter((t) => t.label === 'bottle');
   const wanted = new Map(bottles.map((t) => {
-    const fill = t.liquid && isNum(t.liquid.fill) ? ` ${(t.liquid.fill * 100).toFixed(0)}%` : '';
+    const liq = t.liquid;
+    const fill = liq && isNum(liq.fill) ? ` ${(liq.fill * 100).toFixed(0)}%` : liq && liq.unknown ? ' fill unknown' : '';
     return [String(t.id), `#${t.id} ${t.label}${fill}`];
   }));
   if (sel.value !== '' && !wanted.has(sel.value)) wanted.set(sel.value, `#${sel.value} (lost)`);
