@@ -375,8 +375,9 @@ class LiquidLevelMeter:
         wall_band: float = 0.003,
         edge_band_in: float = 0.0035,
         edge_band_out: float = 0.004,
-        gap_m: float = 0.008,
+        gap_m: float = 0.006,
         min_body_fraction: float = 0.3,
+        cap_m: float = 0.03,
         seed: int = 0,
     ) -> None:
         if method not in METHODS:
@@ -391,7 +392,7 @@ class LiquidLevelMeter:
         self.min_body_seen, self.surface_tol = min_body_seen, surface_tol
         self.occluder_m = occluder_m
         self.wall_band, self.gap_m = wall_band, gap_m
-        self.min_body_fraction = min_body_fraction
+        self.min_body_fraction, self.cap_m = min_body_fraction, cap_m
         self.edge_band_in, self.edge_band_out = edge_band_in, edge_band_out
         self._rng = np.random.default_rng(seed)
 
@@ -584,35 +585,53 @@ class LiquidLevelMeter:
         prior, and found False.
         """
         r = bf.radius
-        step = 0.5e-3
-        t = np.arange(-1.5 * r, 1.5 * r + step, step)
-        k = self._depression_tan(bf, s)[:, None]
-        shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
-        strip = self._strip(frame, bf, s, t, shift)
-        gt = np.linalg.norm(np.diff(strip, axis=1), axis=2)  # colour edges across t
-        tc = 0.5 * (t[1:] + t[:-1])
         start = int(np.searchsorted(s, self.base + 0.005))
         stop = int(np.searchsorted(s, bf.top - 0.01))
         if stop - start < 10:
             return self.body_fraction * bf.top, False
         lowest = slice(start, start + (stop - start) // 3)
         first = max(int(np.searchsorted(s, floor)), start)
+        # The strip at 0.5 mm steps across -1.5 r..1.5 r, sampled where it matters only: on
+        # each side the band and 1 mm beyond it, and the background 1.2-1.5 r.
+        lo, hi = r - self.edge_band_in, r + self.edge_band_out
+        grid = np.arange(-1.5 * r, 1.5 * r + 0.0005, 0.0005)
+        band_t = grid[(grid > lo - 0.001) & (grid < hi + 0.001)]
+        out_t = grid[(grid > 1.2 * r) & (grid < 1.5 * r)]
+        runs = [side * run for side in (-1.0, 1.0) for run in (band_t, out_t)]
+        t = np.concatenate(runs)
+        k = self._depression_tan(bf, s)[:, None]
+        shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
+        strip = self._strip(frame, bf, s, t, shift)
+        cuts = np.cumsum([0] + [len(run) for run in runs])
         body_row = np.ones(len(s), bool)
+        faint = np.zeros(len(s))  # the strongest in-band step of the counted sides
         counted = 0
-        for side in (-1.0, 1.0):
-            inward = side * tc
-            lo, hi = r - self.edge_band_in, r + self.edge_band_out
-            wide = np.flatnonzero((inward > lo - 0.001) & (inward < hi + 0.001))
-            best = wide[np.argmax(gt[:, wide], axis=1)]
-            inside = (inward[best] > lo) & (inward[best] < hi)
-            out = (inward > 1.2 * r) & (inward < 1.5 * r)
-            strength = gt[np.arange(len(s)), best] - np.median(gt[:, out], axis=1)
-            edged = inside & (strength > self.edge_threshold)
+        for side in (0, 1):
+            band, out = (strip[:, cuts[i] : cuts[i + 1]] for i in (2 * side, 2 * side + 1))
+            g_band = np.linalg.norm(np.diff(band, axis=1), axis=2)  # colour edges across t
+            g_out = np.linalg.norm(np.diff(out, axis=1), axis=2)
+            where = 0.5 * (band_t[1:] + band_t[:-1])
+            best = np.argmax(g_band, axis=1)
+            inside = (where[best] > lo) & (where[best] < hi)
+            background = np.median(g_out, axis=1)
+            strength = np.where(inside, g_band[np.arange(len(s)), best] - background, 0.0)
+            edged = strength > self.edge_threshold
             if edged[lowest].mean() >= 0.4:
                 body_row &= edged
+                faint = np.maximum(faint, strength)
                 counted += 1
         if counted == 0:
             return self.body_fraction * bf.top, False
+        # Above the body the band sees the background alone: the first gap_m stretch from
+        # the floor up where two thirds of the rows show not even a faint step (below
+        # edge_threshold / 2 on every counted side) ends the search; a faint clear wall in
+        # the body still shows one.
+        w = max(round(self.gap_m / self.step_m), 2)
+        blank = (faint < 0.5 * self.edge_threshold).astype(float)
+        run = np.convolve(blank[first:stop], np.ones(w) / w, mode="valid")
+        gaps = np.flatnonzero(run >= 2.0 / 3.0)
+        if len(gaps):
+            stop = first + int(gaps[0]) + w // 2
         if stop - first < 4:
             return float(s[min(first, len(s) - 1)]), True
         k_split, _ = _step_split(body_row[first:stop])
@@ -633,8 +652,8 @@ class LiquidLevelMeter:
         # opaque wall (or a view the depth cannot tell), which says nothing about the body.
         first = self._depth_level(rays, bf.top - 0.01)
         floor = self.min_body_fraction * bf.top
-        if first is not None and first[0] < bf.top - 0.02:
-            floor = max(floor, first[0] - 0.003)
+        if first is not None and first[0] < bf.top - self.cap_m:
+            floor = max(floor, first[0] - 0.003, self._wall_top(rays, bf) - 0.005)
         s = np.arange(0.0, bf.top, self.step_m)
         body, shoulder_found = self._body_top(frame, bf, s, floor)
         fraction = body / bf.top
@@ -649,7 +668,7 @@ class LiquidLevelMeter:
             body, shoulder_found = self._body_top(frame, bf, s, floor)
         r = bf.radius
         body = float(np.clip(body, self.base + 0.01, bf.top))
-        unknown = self._why_unseen(frame, bf, body, rays)
+        unknown = self._why_unseen(frame, bf, body, rays, None if first is None else first[0])
         if unknown is not None:
             debug = self._debug(frame, ibox, bf, None, body, None)
             return LiquidLevel(
@@ -794,7 +813,17 @@ class LiquidLevelMeter:
             hits_liquid_cylinder=np.isfinite(zl_in),
         )
 
-    def _why_unseen(self, frame: RGBDFrame, bf: _Frame3D, body: float, rays: _Rays) -> str | None:
+    def _wall_top(self, rays: _Rays, bf: _Frame3D) -> float:
+        """How high the front wall returns depth at the body's radius: the 95th percentile
+        height of the points within ``wall_band`` of the outer cylinder's front (a clear wall
+        does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
+        reaches at least that high, less a few mm of shoulder still near the radius."""
+        h = rays.height[rays.at_wall & (rays.miss < 0.8)]
+        return float(np.percentile(h, 95.0)) if len(h) >= 20 else 0.0
+
+    def _why_unseen(
+        self, frame: RGBDFrame, bf: _Frame3D, body: float, rays: _Rays, passes_below: float | None
+    ) -> str | None:
         """Why the liquid cannot be seen in this view, or None if it can.
 
         **Outside the image**: less than ``min_body_seen`` of the body's axis plane projects
@@ -803,7 +832,9 @@ class LiquidLevelMeter:
         than the bottle's front by ``occluder_m``. **Opaque**: the wall returns depth at the
         bottle's own surface over at least ``opaque_share`` of the lines of sight through the
         body *and* through the lower half of what is above the shoulder (within 0.25 r of the
-        axis: the neck). A clear wall returns depth on a few pixels only (none in MuJoCo's
+        axis: the neck) or, wherever the shoulder was put, with no line of sight passing the
+        bottle anywhere below its top (``passes_below``, the depth level over the whole
+        height, at the top). A clear wall returns depth on a few pixels only (none in MuJoCo's
         plain render; ~10 % good and ~6 % wrong on ClearGrasp's real D435 frames, the
         simulator's camera model), a liquid only below its level and never in the empty neck,
         so only a bottle whose wall the camera cannot see through is dense in both.
@@ -827,17 +858,23 @@ class LiquidLevelMeter:
         body_rays = (
             (rays.miss < 0.5) & (rays.s_axis > self.base + 0.01) & (rays.s_axis < body - 0.005)
         )
+        if body_rays.sum() < 20:
+            return None
+        dense_body = float(rays.on_bottle[body_rays].mean())
+        if dense_body < self.opaque_share:
+            return None
         upper_top = body + 0.004 + 0.5 * max(bf.top - body - 0.004, 0.0)
         neck_rays = (rays.miss < 0.25) & (rays.s_axis > body + 0.004) & (rays.s_axis < upper_top)
-        if body_rays.sum() >= 20 and neck_rays.sum() >= 10:
-            dense_body = float(rays.on_bottle[body_rays].mean())
-            dense_neck = float(rays.on_bottle[neck_rays].mean())
-            if min(dense_body, dense_neck) >= self.opaque_share:
-                return (
-                    f"{OPAQUE}: the wall returns depth on {100 * dense_body:.0f} % of the body and"
-                    f" {100 * dense_neck:.0f} % of the neck, so the liquid cannot be seen"
-                )
-        return None
+        if neck_rays.sum() >= 10 and rays.on_bottle[neck_rays].mean() >= self.opaque_share:
+            neck = f"{100 * rays.on_bottle[neck_rays].mean():.0f} % of the neck"
+        elif passes_below is not None and passes_below >= bf.top - self.cap_m:
+            neck = "no line of sight passes the bottle below its top"
+        else:
+            return None
+        return (
+            f"{OPAQUE}: the wall returns depth on {100 * dense_body:.0f} % of the body and"
+            f" {neck}, so the liquid cannot be seen"
+        )
 
     def _depth_level(self, rays: _Rays, body: float) -> tuple[float, float] | None:
         """Depth cue: the liquid level where lines of sight stop meeting liquid, and its quality.
