@@ -300,12 +300,18 @@ def unit_ring(up: ArrayLike, n: int = 24) -> Array:
 
 
 def bottle_outline(
-    foot: ArrayLike, up: ArrayLike, radius: ArrayLike, height: ArrayLike, body_fraction: float
+    foot: ArrayLike,
+    up: ArrayLike,
+    radius: ArrayLike,
+    height: ArrayLike,
+    body_fraction: float,
+    ring: Array | None = None,
 ) -> Array:
     """Points (..., 72, 3) outlining the model bottle standing at ``foot`` along ``up``: rings
     of 24 at the foot, the shoulder and the top. Leading dimensions of ``foot``, ``radius`` and
-    ``height`` broadcast (the meter fits many parameter sets at once)."""
-    ring = unit_ring(up)
+    ``height`` broadcast (the meter fits many parameter sets at once); ``ring``, the
+    :func:`unit_ring` around ``up`` if the caller has it already."""
+    ring = unit_ring(up) if ring is None else ring
     foot, up = np.asarray(foot, dtype=float), np.asarray(up, dtype=float)
     r, h = np.asarray(radius, dtype=float), np.asarray(height, dtype=float)
     rings = [
@@ -558,11 +564,13 @@ class LiquidLevelMeter:
         target = np.asarray(box, dtype=float)
         mask = np.array([free[0], free[0], free[1], free[2]])
 
+        ring = unit_ring(up)
+
         def bboxes(params: Array) -> Array:
             """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection."""
             a, b, r, h = params.T[:, :, None, None]
             centre = foot + a * e1 + b * e2  # (M, 1, 3)
-            pts = bottle_outline(centre, up, r, h, body_fraction)  # (M, 72, 3)
+            pts = bottle_outline(centre, up, r, h, body_fraction, ring)  # (M, 72, 3)
             uv = project(intr, pts.reshape(-1, 3)).reshape(len(params), -1, 2)
             return pixel_box(uv)
 
@@ -700,9 +708,12 @@ class LiquidLevelMeter:
             # The box fit modelled the body as body_fraction of the height; with the body's
             # own top, fit again (a lower shoulder leans less: the radius changes) and look
             # for the shoulder once more with that radius.
-            bf = self._bottle_frame(frame, fbox, geometry, table, fraction)
-            s = np.arange(0.0, bf.top, self.step_m)
-            body, shoulder_found = self._body_top(frame, bf, s, floor)
+            refit = self._bottle_frame(frame, fbox, geometry, table, fraction)
+            moved = abs(refit.radius - bf.radius) + float(np.linalg.norm(refit.foot - bf.foot))
+            bf = refit
+            if moved > 0.0005:  # else the band around the radius is where it was
+                s = np.arange(0.0, bf.top, self.step_m)
+                body, shoulder_found = self._body_top(frame, bf, s, floor)
         r = bf.radius
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
         rays = self._rays(frame, ibox, bf, r_liq)
