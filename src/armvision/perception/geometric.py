@@ -24,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.sparse.csgraph import connected_components
 
 from armvision.camera.frames import (
     Intrinsics,
@@ -158,7 +159,7 @@ class GeometricDetector:
         wide_top_ratio: float = 0.9,
         top_band: float = 0.015,
         bowl_min_radius: float = 0.042,
-        bowl_height_ratio: float = 0.8,
+        bowl_height_ratio: float = 0.65,
         straight_wall_ratio: float = 0.8,
         straight_wall_min_rms: float = 0.002,
         full_support_points: int = 150,
@@ -166,13 +167,17 @@ class GeometricDetector:
         max_fit_points: int = 600,
         edge_jump: float = 0.012,
         clear_share: float = 0.3,
+        inside_min_elevation_deg: float = 30.0,
+        gap_top_ratio: float = 0.8,
         fit_tolerance: float = 2e-5,
         contained_fraction: float = 0.8,
-        contained_margin: float = 0.003,
+        contained_margin: float = 0.006,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
         self.clear_share = float(clear_share)
+        self.inside_min_elevation_deg = float(inside_min_elevation_deg)
+        self.gap_top_ratio = float(gap_top_ratio)
         self.fit_tolerance = float(fit_tolerance)
         self.contained_fraction = float(contained_fraction)
         self.contained_margin = float(contained_margin)
@@ -368,27 +373,26 @@ class GeometricDetector:
             if circle is not None and not self._radius_ok(circle[1]):
                 circle = None  # not a container's wall: contains nothing
             circles.append(circle)
-        owner = list(range(len(clusters)))
-        for i in range(len(clusters)):
-            points = uw[clusters[i]]
-            for j in range(i):
-                circle = circles[j]
-                if owner[j] != j or circle is None:
-                    continue
+        n = len(clusters)
+        joins = np.eye(n, dtype=bool)
+        for j, circle in enumerate(circles):
+            if circle is None:
+                continue
+            for i in range(n):
+                points = uw[clusters[i]]
                 inside = np.linalg.norm(points - circle[0], axis=1) < circle[1] + (
                     self.contained_margin
                 )
-                if inside.mean() >= self.contained_fraction:
-                    owner[i] = j
-                    break
+                joins[i, j] = inside.mean() >= self.contained_fraction
+        # Either way round: a cup's outer wall holds its inside, and the inside's own circle
+        # (its far inner wall) may hold the outer wall's points.
+        _, group = connected_components(joins, directed=False)
         out = []
-        for j, members in enumerate(clusters):
-            if owner[j] != j:
-                continue
-            joined = [clusters[i] for i in range(len(clusters)) if owner[i] == j]
-            merged = np.concatenate(joined) if len(joined) > 1 else members
+        for g in np.unique(group):
+            members = [k for k in range(n) if group[k] == g]
+            merged = np.concatenate([clusters[k] for k in members])
             if len(merged) >= self.min_points:
-                out.append((merged, circles[j] if len(joined) == 1 else None))
+                out.append((merged, circles[members[0]] if len(members) == 1 else None))
         return out
 
     def _radius_ok(self, radius: float) -> bool:
@@ -429,6 +433,11 @@ class GeometricDetector:
         else:
             center, radius, res, wall = circle
             label = self._classify(uw, h, center, radius, top, res, wall)
+            if label == "cup" and not self._shows_inside(uw, h, center, radius, top):
+                elevation = math.atan2(offset - top, float(np.linalg.norm(center)))
+                far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
+                if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
+                    label = "other"  # its top in view from above, yet no inside: closed
         foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
         intr = frame.intrinsics
         x0, y0, x1, _ = cylinder_box(intr, foot_cam + 0.5 * top * normal, normal, radius, top)
@@ -656,8 +665,7 @@ class GeometricDetector:
         upper = h > 0.75 * top
         if upper.sum() >= 5:
             neck = float(np.percentile(r[upper], 90)) < self.neck_ratio * radius
-        heights = np.sort(h)
-        gap = len(heights) > 1 and float(np.diff(heights).max()) >= self.bottle_gap
+        gap, capped = self._gap(r, h, radius)
         closed = self._closed_top(r, h, radius, top)
         if top >= self.bottle_min_height and not neck and not gap:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
@@ -665,7 +673,7 @@ class GeometricDetector:
             band = h > top - self.top_band
             if float(np.percentile(r[band], 75)) >= self.wide_top_ratio * radius:
                 return "other"
-        if top >= self.bottle_min_height or neck or gap:
+        if top >= self.bottle_min_height or neck or capped:
             return "bottle"
         if closed:
             return "other"  # a can, box or block: a flat closed top at rim height
@@ -674,6 +682,61 @@ class GeometricDetector:
         if res is not None and wall is not None and self._straight_walls(uw[wall], res[wall]):
             return "other"  # a box's faces: two straight lines fit better than the circle
         return "cup"
+
+    def _far_top_in_view(
+        self,
+        frame: RGBDFrame,
+        center: Array,
+        radius: float,
+        top: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> bool:
+        """Whether the far half of the object's top (its rim and what is inside it) is in
+        the image and not hidden behind something nearer: at least half of 15 samples on
+        it (0.3-0.9 x the radius past the axis) have depth at or beyond their own."""
+        intr = frame.intrinsics
+        away = center / max(float(np.linalg.norm(center)), 1e-9)
+        lateral = np.array([-away[1], away[0]])
+        ring = [(a, b) for a in (0.3, 0.6, 0.9) for b in (-0.5, -0.25, 0.0, 0.25, 0.5)]
+        uw = np.array([center + radius * (a * away + b * lateral) for a, b in ring])
+        p_cam = uw[:, :1] * e1 + uw[:, 1:] * e2 + (top - offset) * normal
+        uv = np.rint(project(intr, p_cam))
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        if ok.sum() < len(ring) // 2:
+            return False
+        seen = np.asarray(frame.depth, dtype=float)[uv[ok, 1].astype(int), uv[ok, 0].astype(int)]
+        margin = np.maximum(0.01, 3.0 * depth_rms_error(p_cam[ok, 2]))
+        hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
+        return int((~hidden).sum()) >= len(ring) // 2
+
+    def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> bool:
+        """Whether the cluster shows the inside of an open vessel: at least
+        ``closed_top_min_points`` points on the far half (beyond 0.2 x the radius past the
+        axis, seen from the camera) and more than ``closed_top_tolerance`` below the top: the
+        inner far wall under the rim, or the liquid. A can's or box's far half shows only its
+        top, at rim height."""
+        to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
+        far = (uw - center) @ to_cam < -0.2 * radius
+        below = h < top - self.closed_top_tolerance
+        return int((far & below).sum()) >= self.closed_top_min_points
+
+    def _gap(self, r: Array, h: Array, radius: float) -> tuple[bool, bool]:
+        """(gap, capped): whether the height profile has a gap of at least ``bottle_gap``
+        with no points (a clear wall, between liquid and cap or liquid and rim), and whether
+        what lies above the widest gap is narrow (90th percentile of its distance from the
+        axis below ``gap_top_ratio`` x the radius): a cap, not the rim of a clear cup."""
+        if len(h) < 2:
+            return False, False
+        order = np.argsort(h)
+        steps = np.diff(h[order])
+        k = int(np.argmax(steps))
+        if float(steps[k]) < self.bottle_gap:
+            return False, False
+        above = r[order[k + 1 :]]
+        return True, float(np.percentile(above, 90)) < self.gap_top_ratio * radius
 
     def _closed_top(self, r: Array, h: Array, radius: float, top: float) -> bool:
         """Whether the points inside the rim (r < ``closed_top_inner`` x the radius, away
