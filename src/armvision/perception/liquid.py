@@ -611,7 +611,7 @@ class LiquidLevelMeter:
         return (to_cam @ bf.up) / np.maximum(-(to_cam @ bf.away), 1e-9)
 
     def _body_top(
-        self, frame: RGBDFrame, bf: _Frame3D, s: Array, floor: float
+        self, frame: RGBDFrame, bf: _Frame3D, s: Array, floor: float, search_wall: bool = False
     ) -> tuple[float, bool]:
         """Height of the shoulder: the top of the body's straight silhouette edges.
 
@@ -638,13 +638,16 @@ class LiquidLevelMeter:
             return self.body_fraction * bf.top, False
         lowest = slice(start, start + (stop - start) // 3)
         first = max(int(np.searchsorted(s, floor)), start)
-        # The strip at 0.5 mm steps across -1.5 r..1.5 r, sampled where it matters only: on
-        # each side the band and 1 mm beyond it, and the background 1.2-1.5 r.
-        lo, hi = r - self.edge_band_in, r + self.edge_band_out
-        grid = np.arange(-1.5 * r, 1.5 * r + 0.0005, 0.0005)
-        band_t = grid[(grid > lo - 0.001) & (grid < hi + 0.001)]
-        out_t = grid[(grid > 1.2 * r) & (grid < 1.5 * r)]
-        runs = [side * run for side in (-1.0, 1.0) for run in (band_t, out_t)]
+        walls = self._wall_offsets(frame, bf, s[lowest][::2]) if search_wall else (r, r)
+        # The strip at 0.5 mm steps, sampled where it matters only: on each side the band
+        # around that side's wall and 1 mm beyond it, and the background 1.2-1.5 times as far.
+        grid = np.arange(-1.5 * r, 2.0 * r, 0.0005)  # the phase of the validated sampling
+        runs, bands = [], []
+        for side, wall in zip((-1.0, 1.0), walls):
+            lo, hi = wall - self.edge_band_in, wall + self.edge_band_out
+            band_t = grid[(grid > lo - 0.001) & (grid < hi + 0.001)]
+            runs += [side * band_t, side * grid[(grid > 1.2 * wall) & (grid < 1.5 * wall)]]
+            bands.append((band_t, lo, hi))
         t = np.concatenate(runs)
         k = self._depression_tan(bf, s)[:, None]
         shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
@@ -655,6 +658,7 @@ class LiquidLevelMeter:
         counted = 0
         for side in (0, 1):
             band, out = (strip[:, cuts[i] : cuts[i + 1]] for i in (2 * side, 2 * side + 1))
+            band_t, lo, hi = bands[side]
             g_band = np.linalg.norm(np.diff(band, axis=1), axis=2)  # colour edges across t
             g_out = np.linalg.norm(np.diff(out, axis=1), axis=2)
             where = 0.5 * (band_t[1:] + band_t[:-1])
@@ -702,7 +706,8 @@ class LiquidLevelMeter:
         if first is not None and first[0] < bf.top - self.cap_m:
             floor = max(floor, first[0] - 0.003, self._wall_top(rays, bf) - 0.005)
         s = np.arange(0.0, bf.top, self.step_m)
-        body, shoulder_found = self._body_top(frame, bf, s, floor)
+        search = geometry.radius is not None  # a detector's radius: its box may be narrow
+        body, shoulder_found = self._body_top(frame, bf, s, floor, search)
         fraction = body / bf.top
         if shoulder_found and abs(fraction - self.body_fraction) > 0.02:
             # The box fit modelled the body as body_fraction of the height; with the body's
@@ -713,7 +718,7 @@ class LiquidLevelMeter:
             bf = refit
             if moved > 0.0005:  # else the band around the radius is where it was
                 s = np.arange(0.0, bf.top, self.step_m)
-                body, shoulder_found = self._body_top(frame, bf, s, floor)
+                body, shoulder_found = self._body_top(frame, bf, s, floor, search)
         r = bf.radius
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
         rays = self._rays(frame, ibox, bf, r_liq)
@@ -882,6 +887,31 @@ class LiquidLevelMeter:
             at_wall=at_wall,
             hits_liquid_cylinder=np.isfinite(zl_in),
         )
+
+    def _wall_offsets(self, frame: RGBDFrame, bf: _Frame3D, s: Array) -> tuple[float, float]:
+        """How far from the axis each side's wall shows in colour in rows ``s`` (left, right).
+
+        The box gives the radius, but a detector's box of a clear bottle may be a few mm
+        narrower than the bottle (its depth is the liquid's), and then the wall's silhouette
+        lies outside the band where the shoulder is looked for. So, per side, between 0.6 and
+        1.5 times the radius, the outermost 0.5 mm column where a colour step beats the row's
+        median step by ``edge_threshold`` in at least 40 % of the rows is the wall; none
+        found: the radius. Only for a caller's geometry (a detector's): a box projected from
+        the bottle itself (the evaluation's) is not narrow, and a background edge persisting
+        beside the bottle would only move the band off the wall.
+        """
+        r = bf.radius
+        grid = np.arange(0.6 * r, 1.5 * r, 0.0005)
+        out = []
+        for side in (-1.0, 1.0):
+            strip = self._strip(frame, bf, s, side * grid)
+            g = np.linalg.norm(np.diff(strip, axis=1), axis=2)
+            g = np.maximum(g, np.maximum(np.roll(g, 1, axis=1), np.roll(g, -1, axis=1)))
+            edged = g - np.median(g, axis=1, keepdims=True) > self.edge_threshold
+            columns = np.flatnonzero(edged.mean(axis=0) >= 0.4)
+            wall = 0.5 * (grid[columns[-1]] + grid[columns[-1] + 1]) if len(columns) else r
+            out.append(float(wall))
+        return out[0], out[1]
 
     def _wall_top(self, rays: _Rays, bf: _Frame3D) -> float:
         """How high the front wall returns depth at the body's radius: the 95th percentile
