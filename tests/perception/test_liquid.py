@@ -203,6 +203,20 @@ def test_an_opaque_bottle_is_unknown() -> None:
     assert level.debug.ndim == 3
 
 
+def test_a_bottle_cut_by_the_image_border_is_unknown() -> None:
+    """The same bottle with the image ending at row 300, through its body: the box's bottom
+    is the border, not the bottle's foot, so no level is read from it."""
+    frame, box, _ = _render_bottle(0.45)
+    intr = Intrinsics(640, 300, INTR.fx, INTR.fy, INTR.ppx, INTR.ppy)
+    cut = RGBDFrame(
+        np.ascontiguousarray(frame.color[:300]), np.ascontiguousarray(frame.depth[:300]), intr,
+        0.0, 0,
+    )  # fmt: skip
+    level = LiquidLevelMeter().measure(cut, (box[0], box[1], box[2], 300.0))
+    assert level.fill is None and level.unknown is not None and "bottom border" in level.unknown
+    assert level.confidence == 0.0
+
+
 def test_a_hidden_body_is_unknown() -> None:
     """A box standing in front of the bottle's body: its liquid cannot be seen."""
     frame, box, _ = _render_bottle(0.5, occluder=True)
@@ -223,6 +237,12 @@ def test_profile_uses_a_known_geometry() -> None:
     short = ContainerGeometry(tuple(centre_cam), 0.025, 0.2)
     level = LiquidLevelMeter().measure(frame, box, short)
     assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
+    # And a detector's box 5 px narrower each side than the bottle (its depth is the
+    # liquid's): the wall is found in colour beyond the box's radius, the shoulder still read.
+    x0, y0, x1, y1 = box
+    level = LiquidLevelMeter().measure(frame, (x0 + 5, y0, x1 - 5, y1), short)
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
+    assert level.body_height_m is not None and abs(level.body_height_m - 0.15) <= 0.005
 
 
 def test_bad_inputs_say_what_to_do() -> None:

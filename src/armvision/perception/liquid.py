@@ -67,7 +67,8 @@ not seen. On the simulator (both profiles, 200 see-through bottles) readings of 
 at the bottle's surface over its body and its neck, or no line of sight passes the bottle
 anywhere below its cap: a clear bottle always shows the room through its empty neck), when
 the body is mostly hidden by something in front or outside the image, or when no upright
-bottle on the table projects onto the box.
+bottle on the table projects onto the box, or the box reaches the image's border (the fit
+would take the border for the bottle's foot, side or cap).
 
 ``armvision.eval.liquid`` measures both methods, and each cue alone, on the simulator (the
 figures are in the README).
@@ -168,6 +169,21 @@ def _check_inputs(frame: RGBDFrame, box: ArrayLike) -> tuple[int, int, int, int]
             f" the {w}x{h} image; it needs at least 4x8: is it inside the image, as x0, y0, x1, y1?"
         )
     return x0, y0, x1, y1
+
+
+def _border_cut(intr: Intrinsics, box: Box, top_known: bool, margin: float = 1.0) -> str | None:
+    """Which image border the box reaches (within ``margin`` px), if any: "bottom", "left",
+    "right" or, unless the caller knows the bottle's height, "top"."""
+    x0, y0, x1, y1 = box
+    for name, reached in (
+        ("bottom", y1 >= intr.height - margin),
+        ("left", x0 <= margin),
+        ("right", x1 >= intr.width - margin),
+        ("top", y0 <= margin and not top_known),
+    ):
+        if reached:
+            return name
+    return None
 
 
 def _median_rgb(pixels: NDArray[np.number]) -> tuple[int, int, int]:
@@ -694,6 +710,13 @@ class LiquidLevelMeter:
         ibox = _check_inputs(frame, box)
         x0, y0, x1, y1 = (float(v) for v in np.ravel(box))
         fbox = (x0, y0, x1, y1)
+        cut = _border_cut(frame.intrinsics, fbox, top_known=geometry.height is not None)
+        if cut is not None:
+            # The box ends where the image does, not where the bottle does: the fit would
+            # take the border for the bottle's foot, side or cap.
+            crop = np.ascontiguousarray(frame.color[ibox[1] : ibox[3], ibox[0] : ibox[2]])
+            why = f"the bottle is cut by the image's {cut} border: its liquid cannot be read"
+            return LiquidLevel(None, None, 0.0, None, "profile", crop.copy(), unknown=why)
         table = self._table(frame, fbox)
         bf = self._bottle_frame(frame, fbox, geometry, table, self.body_fraction)
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
