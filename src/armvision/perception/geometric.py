@@ -451,6 +451,8 @@ class GeometricDetector:
             if body_top > top + self.bottle_gap:
                 label = "bottle"
                 top = max(top, body_top / self.bottle_body_fraction)
+        elif label == "bottle":
+            top = self._thin_top(frame, foot_cam, normal, offset, e1, e2, radius, top)
         n_wall = int(wall.sum())
         fit_fraction = float((np.abs(res[wall]) < 2.5 * sigma).mean())
         score = fit_fraction * min(1.0, n_wall / self.full_support_points)
@@ -682,6 +684,55 @@ class GeometricDetector:
         if res is not None and wall is not None and self._straight_walls(uw[wall], res[wall]):
             return "other"  # a box's faces: two straight lines fit better than the circle
         return "cup"
+
+    def _thin_top(
+        self,
+        frame: RGBDFrame,
+        foot_cam: Array,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+        radius: float,
+        top: float,
+        reach: float = 0.04,
+        step: float = 0.006,
+    ) -> float:
+        """A bottle's top with what is too thin for the strided, edge-filtered cloud: a
+        nozzle or a cap loop (a few millimetres, one or two pixels wide, all depth edge).
+        Every full-resolution pixel in the window above the top within ``reach`` whose point
+        lies within 0.6 x the radius of the axis and above the top; the top climbs through
+        them while no step exceeds ``step``; its third highest point is the new top if that
+        is more than ``closed_top_tolerance`` higher, else the top is unchanged."""
+        intr = frame.intrinsics
+        column = foot_cam + np.outer([top, top + reach], normal)
+        uv = project(intr, column)
+        if not np.isfinite(uv).all():
+            return top
+        half = 0.6 * radius * intr.fx / max(float(column[:, 2].min()), 0.1)
+        x0 = max(int(uv[:, 0].min() - half), 0)
+        x1 = min(int(uv[:, 0].max() + half) + 1, intr.width)
+        y0 = max(int(uv[:, 1].min()) - 2, 0)
+        y1 = min(int(uv[:, 1].max()) + 3, intr.height)
+        if x1 <= x0 or y1 <= y0:
+            return top
+        z = np.asarray(frame.depth[y0:y1, x0:x1], dtype=float)
+        rows, cols = np.nonzero(z > 0.0)
+        if len(rows) == 0:
+            return top
+        p = deproject(intr, np.column_stack([cols + x0, rows + y0]), z[rows, cols])
+        h = p @ normal + offset
+        off_axis = p - foot_cam - np.outer(h, normal)
+        near_axis = np.linalg.norm(off_axis, axis=1) < 0.6 * radius
+        heights = np.sort(h[near_axis & (h > top) & (h < top + reach)])
+        steps = np.diff(np.concatenate([[top], heights]))
+        climb = int(np.argmax(steps > step)) if (steps > step).any() else len(heights)
+        if climb < 3:
+            return top
+        # The third highest of the chain (noise makes single points), and only a real
+        # structure: a few millimetres above the top the strided cloud saw.
+        raised = float(heights[climb - 3])
+        return raised if raised > top + self.closed_top_tolerance else top
 
     def _far_top_in_view(
         self,
