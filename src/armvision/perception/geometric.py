@@ -389,10 +389,10 @@ class GeometricDetector:
         _, group = connected_components(joins, directed=False)
         out = []
         for g in np.unique(group):
-            members = [k for k in range(n) if group[k] == g]
-            merged = np.concatenate([clusters[k] for k in members])
+            parts = [k for k in range(n) if group[k] == g]
+            merged = np.concatenate([clusters[k] for k in parts])
             if len(merged) >= self.min_points:
-                out.append((merged, circles[members[0]] if len(members) == 1 else None))
+                out.append((merged, circles[parts[0]] if len(parts) == 1 else None))
         return out
 
     def _radius_ok(self, radius: float) -> bool:
