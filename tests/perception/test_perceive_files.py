@@ -59,6 +59,7 @@ DETECTION_KEYS = {
     "fill",
     "fill_confidence",
     "liquid_colour",
+    "fill_unknown",
 }
 
 
