@@ -138,8 +138,8 @@ def test_any_field_replaced_by_any_value_loads_or_is_a_one_line_error(workdir, p
                 parent.pop(place[-1])  # a missing field
             else:
                 put(document, place, value)
-        except (KeyError, IndexError, TypeError):
-            pass  # an earlier replacement removed this place
+        except (KeyError, IndexError, TypeError, AttributeError):
+            pass  # an earlier replacement removed this place (or made its parent a scalar)
     path = workdir / "mutated.json"
     write_json(path, document)
     loads_or_one_line_error(path)
