@@ -567,9 +567,6 @@ class GeometricDetector:
         # A few hundred points fix a circle to well under a millimetre; thousands cost time.
         sub = slice(None, None, max(1, len(uw) // self.max_fit_points))
         center, radius = fit_circle_kasa(uw[sub])
-        center, radius, _ = fit_circle_geometric(
-            uw[sub], center, radius, 2.0 * sigma, tolerance=self.fit_tolerance
-        )
         res = np.linalg.norm(uw - center, axis=1) - radius
         # The camera is at (0, 0) in (u, w): keep the wall facing it, near the circle.
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
