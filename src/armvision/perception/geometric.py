@@ -167,6 +167,7 @@ class GeometricDetector:
         max_fit_points: int = 600,
         edge_jump: float = 0.012,
         clear_share: float = 0.3,
+        clear_min_radius: float = 0.015,
         inside_min_elevation_deg: float = 30.0,
         gap_top_ratio: float = 0.8,
         fit_tolerance: float = 2e-5,
@@ -176,6 +177,7 @@ class GeometricDetector:
     ) -> None:
         self.edge_jump = float(edge_jump)
         self.clear_share = float(clear_share)
+        self.clear_min_radius = float(clear_min_radius)
         self.inside_min_elevation_deg = float(inside_min_elevation_deg)
         self.gap_top_ratio = float(gap_top_ratio)
         self.fit_tolerance = float(fit_tolerance)
@@ -480,7 +482,8 @@ class GeometricDetector:
         """Detections not labelled bottle that the depth camera mostly cannot see (a missing
         share of at least ``clear_share`` over their front surface, see
         :meth:`_see_through`, nearest first, leaving out the boxes of nearer clear objects,
-        which blank what is behind them): clear plastic or
+        which blank what is behind them) and at least ``clear_min_radius`` in radius (not a
+        fragment of a clear object's sparse depth): clear plastic or
         glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl."""
         if self.clear_share >= 1.0:
             return detections
@@ -496,7 +499,7 @@ class GeometricDetector:
             if share < self.clear_share:
                 continue
             clear_boxes.append(det.box)
-            if det.label != "bottle":
+            if det.label != "bottle" and det.radius >= self.clear_min_radius:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
                 out[i] = dataclasses.replace(det, label=label)
         return out
