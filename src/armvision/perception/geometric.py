@@ -1,14 +1,17 @@
-"""Bottles and cups as vertical cylinders standing on the table, from depth alone.
+"""Bottles, cups and other objects standing on the table, as vertical cylinders, from depth.
 
 The table is the dominant plane of the depth point cloud (RANSAC), the robot's own points are
 removed (capsules around its links, placed by forward kinematics when the frame's context
-gives the camera pose and joint angles), what stands on the table is clustered in the table
-plane, and a vertical cylinder is fitted to each cluster: a circle through the
-*camera-facing wall* in the table plane (only that half is seen, so a centroid would sit too
-near the camera) and the height from the highest points. Bottle or cup follows from the
-shape: height, a narrow top (neck and cap) and a gap of no depth between liquid and cap (a
-clear bottle's wall returns no depth, only its liquid and cap do). Closed flat tops (cans,
-canisters, boxes), straight walls (boxes) and wide short shapes (bowls) make "other".
+gives the camera pose and joint angles), and so are depth edges (occluding contours and the
+flying pixels a depth camera puts along them, which would join neighbouring objects). What
+stands on the table is clustered in the table plane, a cluster lying inside another's wall
+circle (a cup's inside, a cap) is joined to it, and a vertical cylinder is fitted to each: a
+circle through the *camera-facing wall* in the table plane (only that half is seen, so a
+centroid would sit too near the camera) and the height from the highest points. The label
+follows from the shape (height, a narrow neck or cap, a gap of no depth under a cap, a closed
+top, a top as wide as the body, a bowl's proportions, straight walls, an inside seen from
+above) and from how much depth the surface returns: clear plastic returns little, and on a
+table a clear object is a bottle or a cup. What is neither is "other", an obstacle.
 
 Table-plane coordinates used inside the detector are (u, w, h): two in-plane axes and the
 height above the table.
@@ -85,40 +88,48 @@ class GeometricDetector:
     ``max_table_tilt_deg`` of the table normal the camera pose predicts, when the frame's
     :class:`~armvision.perception.detection.FrameContext` gives ``T_base_cam``); (2) every
     pixel's height above it; pixels between ``min_height`` and ``max_height`` and nearer than
-    ``max_range`` are candidates; (3) with the context's ``T_base_cam``, anything farther than
+    ``max_range`` are candidates, except depth edges (a 3x3 depth range above ``edge_jump``
+    or 5 x the depth noise); (3) with the context's ``T_base_cam``, anything farther than
     ``workspace_radius`` from the base axis is dropped and so are candidates within
     ``arm_margin`` of the arm's base, and with its ``joint_positions`` too of every link's
     capsule (the self-filter); without a camera pose only the range and height crop applies
-    and the robot may be reported; (4) candidates are binned
-    onto a ``grid_cell`` grid in the table plane, the occupied cells joined by a closing and
-    labelled with OpenCV's connected components, so a bottle's cap and liquid, which overlap in
-    the plane though a gap of clear wall separates them in depth, are one cluster; (5) per
+    and the robot may be reported; (4) candidates are binned onto a ``grid_cell`` grid in the
+    table plane, the occupied cells joined by a closing and labelled with OpenCV's connected
+    components; a cluster with at least ``contained_fraction`` of its points within
+    ``contained_margin`` of another's wall circle (either way round) is joined to it; (5) per
     cluster a circle is fitted to the camera-facing wall (algebraic fit, then geometric Huber
     IRLS on the points within a band of the circle on the side facing the camera, so a cup's
     inner far wall, its liquid and a bottle's liquid surface do not pull it), the height is the
-    ``top_rank``-th highest point, and the label comes from the shape (``bottle_min_height``,
-    a neck narrower than ``neck_ratio`` x the radius in the top quarter, or a gap of at least
-    ``bottle_gap`` with no points in the height profile). (6) A short cluster cut by the
-    left, right or top image border may be a clear bottle whose cap is outside the image: if
-    its silhouette continues upward in colour (``color_contrast`` grey levels against its
-    surroundings, with nothing standing behind it in depth) by more than ``bottle_gap``, it is
-    a bottle whose height is that body top / ``bottle_body_fraction`` (a shape prior: the
-    simulated bottles' body is 72 % of their height). Only every ``pixel_stride``-th pixel
-    and row is used, and circle fits use at most ``max_fit_points`` points.
+    ``top_rank``-th highest point (for a bottle raised through the full-resolution pixels near
+    its axis: a nozzle or cap loop), and the label comes from the shape (below). A cluster
+    with no round wall (a box's face, its grazing side cut off as a depth edge) is "other",
+    its footprint's width the diameter. (6) A short cluster cut by the left, right or top
+    image border may be a clear bottle whose cap is outside the image: if its silhouette
+    continues upward in colour (``color_contrast`` grey levels against its surroundings, with
+    nothing standing behind it in depth) by more than ``bottle_gap``, it is a bottle whose
+    height is that body top / ``bottle_body_fraction`` (a shape prior: the simulated bottles'
+    body is 72 % of their height). (7) Nearest first, an object whose front surface returns
+    no depth over at least ``clear_share`` of it (boxes of nearer clear objects left out) and
+    ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup. Only
+    every ``pixel_stride``-th pixel and row is used, and circle fits use at most
+    ``max_fit_points`` points.
 
-    Objects that are neither are reported as ``"other"``, their geometry kept (tasks act on
-    bottles and cups only). A closed top: of the points inside the rim (nearer the axis than
-    ``closed_top_inner`` x the radius, at least ``closed_top_min_points``), a share of at
-    least ``closed_top_fraction`` lies within ``closed_top_tolerance`` of the top (a can, box
-    or block; a cup shows its inside below the rim, or nothing inside it). Such a short
-    object without bottle evidence is other; a tall one (bottle by height alone, no neck, no
-    gap) is other too when its top band is as wide as the body (90th percentile of its
-    points' distance from the axis at least ``wide_top_ratio`` x the radius: a can stack or a
-    canister, where a bottle's top band is its narrow cap). A would-be cup is also other when
-    wide and short (radius above ``bowl_min_radius`` and height below ``bowl_height_ratio``
-    x the diameter: a bowl), or when its camera-facing wall fits two straight lines (a box's
-    faces) with an RMS distance below ``straight_wall_ratio`` x that of the circle, the
-    circle's being above ``straight_wall_min_rms``.
+    The shape rules. A bottle: at least ``bottle_min_height`` tall, or a neck (the top
+    quarter's 90th-percentile distance from the axis below ``neck_ratio`` x the radius), or a
+    gap of at least ``bottle_gap`` with no points in the height profile under something narrow
+    (below ``gap_top_ratio`` x the radius: a cap, not a clear cup's rim). A tall object with
+    no neck and no gap is other when its top ``top_band`` is as wide as the body (75th
+    percentile at least ``wide_top_ratio`` x the radius: a can stack or canister). A closed
+    top: of the points inside the rim (nearer the axis than ``closed_top_inner`` x the radius,
+    at least ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies
+    within ``closed_top_tolerance`` of the top (a can, box or block); a short object with one
+    and no bottle evidence is other. A would-be cup is also other when wide and short (radius
+    above ``bowl_min_radius`` and height below ``bowl_height_ratio`` x the diameter: a bowl),
+    when its camera-facing wall fits two straight lines (a box's faces) with an RMS distance
+    below ``straight_wall_ratio`` x that of the circle, the circle's being above
+    ``straight_wall_min_rms``, or when seen from ``inside_min_elevation_deg`` or more above
+    with its far top in view it shows no inside (no points on its far half below the rim: a
+    can or box whose top returned no depth).
 
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
