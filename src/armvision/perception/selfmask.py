@@ -97,6 +97,15 @@ def self_mask(
         base = capsules[0]
         a, b = np.array([base[0]], float), np.array([base[1]], float)
         radii = np.array([base[2]], float)
-    near_arm = (segment_distances(p_base[keep], a, b) < radii + margin).any(axis=1)
-    keep[np.flatnonzero(keep)[near_arm]] = False
+    # Only points inside some capsule's bounding box can be within it: the distances to
+    # the segments are computed for those alone (most of a table's points are far away).
+    reach = (radii + margin)[:, None]
+    lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
+    inside = np.flatnonzero(keep)
+    p_in = p_base[inside]
+    boxed = ((p_in[:, None, :] >= lo[None]) & (p_in[:, None, :] <= hi[None])).all(axis=2)
+    near = boxed.any(axis=1)
+    check = inside[near]
+    near_arm = (segment_distances(p_base[check], a, b) < radii + margin).any(axis=1)
+    keep[check[near_arm]] = False
     return keep
