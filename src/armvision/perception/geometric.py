@@ -388,10 +388,17 @@ class GeometricDetector:
             circles.append(circle)
         n = len(clusters)
         joins = np.eye(n, dtype=bool)
+        lo = np.array([uw[m].min(axis=0) for m in clusters]).reshape(-1, 2)
+        hi = np.array([uw[m].max(axis=0) for m in clusters]).reshape(-1, 2)
         for j, circle in enumerate(circles):
             if circle is None:
                 continue
-            for i in range(n):
+            reach = circle[1] + self.contained_margin
+            # A cluster whose bounding box misses the circle's has no point inside it.
+            near = np.flatnonzero(
+                ((lo <= circle[0] + reach) & (hi >= circle[0] - reach)).all(axis=1)
+            )
+            for i in near:
                 points = uw[clusters[i]]
                 inside = np.linalg.norm(points - circle[0], axis=1) < circle[1] + (
                     self.contained_margin

@@ -103,8 +103,10 @@ def self_mask(
     lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
     inside = np.flatnonzero(keep)
     p_in = p_base[inside]
-    boxed = ((p_in[:, None, :] >= lo[None]) & (p_in[:, None, :] <= hi[None])).all(axis=2)
-    near = boxed.any(axis=1)
+    boxed: NDArray[np.bool_] = np.all(
+        (p_in[:, None, :] >= lo[None]) & (p_in[:, None, :] <= hi[None]), axis=2
+    )
+    near = np.any(boxed, axis=1)
     check = inside[near]
     near_arm = (segment_distances(p_base[check], a, b) < radii + margin).any(axis=1)
     keep[check[near_arm]] = False
