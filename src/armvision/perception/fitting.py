@@ -183,14 +183,14 @@ def fit_circle_geometric(
     """
     c = np.asarray(center, dtype=float).copy()
     r = float(radius)
+    J = np.empty((len(xy), 3))
+    J[:, 2] = -1.0
     for _ in range(iterations):
         diff = xy - c
-        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
+        dist = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-9)
         res = dist - r
         w = np.minimum(1.0, scale / np.maximum(np.abs(res), 1e-12))
-        J = np.empty((len(xy), 3))
-        J[:, :2] = -diff / dist[:, None]
-        J[:, 2] = -1.0
+        np.divide(diff, -dist[:, None], out=J[:, :2])
         JW = J * w[:, None]
         try:
             step = np.linalg.solve(JW.T @ J, -(JW.T @ res))
