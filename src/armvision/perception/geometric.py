@@ -765,7 +765,8 @@ class GeometricDetector:
     ) -> bool:
         """Whether the far half of the object's top (its rim and what is inside it) is in
         the image and not hidden behind something nearer: at least half of 15 samples on
-        it (0.3-0.9 x the radius past the axis) have depth at or beyond their own."""
+        it (0.3-0.9 x the radius past the axis) are in the image with no depth nearer than
+        their own (missing depth does not hide: a metal lid may return none)."""
         intr = frame.intrinsics
         away = center / max(float(np.linalg.norm(center)), 1e-9)
         lateral = np.array([-away[1], away[0]])
