@@ -96,11 +96,11 @@ def main(argv: list[str] | None = None) -> dict:
             q = arm.get_joint_positions()
             context = FrameContext(T_base_cam=world.T_base_cam(), joint_positions=q)
             objects = GeometricDetector()
-            objects.detect(frame, context)  # builds its per-intrinsics ray cache
+            found = objects.detect(frame, context)  # also builds its per-intrinsics ray cache
+            bottles.append(sum(d.label == "bottle" for d in found))
             times = _time_stages(
                 frame, context, objects, tags, tags_no_depth, raw, liquid, args.repeats
             )
-            bottles.append(sum(d.label == "bottle" for d in objects.detect(frame, context)))
             for name, ms in zip(rows, times):
                 rows[name].append(ms)
 

@@ -542,7 +542,6 @@ class GeometricDetector:
         alone, not depth behind the surface: a fitted cylinder wider than a round or tapered
         object (fruit, a bowl) sees the table behind its edges. 0 with fewer than 12 samples
         to judge by."""
-        intr = frame.intrinsics
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
         t = radius * np.linspace(-0.6, 0.6, 7)
@@ -550,13 +549,12 @@ class GeometricDetector:
         uw = center + np.outer(np.sqrt(radius**2 - t**2), to_cam) + np.outer(t, lateral)
         base = uw[:, :1] * e1 + uw[:, 1:] * e2 - offset * normal
         p_cam = (base[None, :, :] + hs[:, None, None] * normal).reshape(-1, 3)
-        uv = np.rint(project(intr, p_cam))
-        ok = (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        uv, ok = _in_image(frame.intrinsics, p_cam)
         for x0, y0, x1, y1 in skip_boxes:  # behind a nearer object, perhaps a clear one
             ok &= ~((uv[:, 0] >= x0) & (uv[:, 0] <= x1) & (uv[:, 1] >= y0) & (uv[:, 1] <= y1))
         if ok.sum() < 12:
             return 0.0
-        seen = np.asarray(frame.depth, dtype=float)[uv[ok, 1].astype(int), uv[ok, 0].astype(int)]
+        seen = _depth_at(frame, uv[ok])
         expected = p_cam[ok, 2]
         margin = np.maximum(0.015, 3.0 * depth_rms_error(expected))
         missing = seen <= 0.0
@@ -767,17 +765,15 @@ class GeometricDetector:
         the image and not hidden behind something nearer: at least half of 15 samples on
         it (0.3-0.9 x the radius past the axis) are in the image with no depth nearer than
         their own (missing depth does not hide: a metal lid may return none)."""
-        intr = frame.intrinsics
         away = center / max(float(np.linalg.norm(center)), 1e-9)
         lateral = np.array([-away[1], away[0]])
         ring = [(a, b) for a in (0.3, 0.6, 0.9) for b in (-0.5, -0.25, 0.0, 0.25, 0.5)]
         uw = np.array([center + radius * (a * away + b * lateral) for a, b in ring])
         p_cam = uw[:, :1] * e1 + uw[:, 1:] * e2 + (top - offset) * normal
-        uv = np.rint(project(intr, p_cam))
-        ok = (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        uv, ok = _in_image(frame.intrinsics, p_cam)
         if ok.sum() < len(ring) // 2:
             return False
-        seen = np.asarray(frame.depth, dtype=float)[uv[ok, 1].astype(int), uv[ok, 0].astype(int)]
+        seen = _depth_at(frame, uv[ok])
         margin = np.maximum(0.01, 3.0 * depth_rms_error(p_cam[ok, 2]))
         hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
         return int((~hidden).sum()) >= len(ring) // 2
@@ -837,6 +833,19 @@ class GeometricDetector:
         for k in range(5, n - 5, max(1, n // 40)):
             best = min(best, _line_ss(ordered[:k]) + _line_ss(ordered[k:]))
         return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
+
+
+def _in_image(intr: Intrinsics, p_cam: Array) -> tuple[Array, NDArray[np.bool_]]:
+    """Camera-frame points' nearest pixels (N, 2) and which of them fall inside the image
+    (points behind the camera project to NaN and do not)."""
+    uv = np.rint(project(intr, p_cam))
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+    return uv, ok
+
+
+def _depth_at(frame: RGBDFrame, uv: Array) -> Array:
+    """The frame's depth (m, 0 = none) at pixels ``uv`` (N, 2) inside the image."""
+    return np.asarray(frame.depth, dtype=float)[uv[:, 1].astype(int), uv[:, 0].astype(int)]
 
 
 def _line_ss(points: Array) -> float:
