@@ -13,16 +13,12 @@ import math
 
 import numpy as np
 import pytest
+from tests.perception.helpers import detect_placed
 
 from armvision.camera.frames import Intrinsics
 from armvision.config import load_config
-from armvision.geometry import inv_T, transform_points
-from armvision.perception.detection import FrameContext
 from armvision.perception.geometric import GeometricDetector
-from armvision.sim.arm import SimArm
-from armvision.sim.camera import SimCamera
-from armvision.sim.scene import SceneSpec, random_camera_pose, random_cluttered_object
-from armvision.sim.world import SimWorld
+from armvision.sim.scene import random_cluttered_object
 
 RNG = np.random.default_rng(7171)
 INTR = Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5)
@@ -51,25 +47,8 @@ def clutter() -> tuple[list, list]:
         objects.append(dataclasses.replace(spec, x=x, y=y))
     config = load_config(None, ["sim.profile=cluttered"])
     assert config.sim.camera_effects_on  # clear-plastic depth, flying pixels, speckle
-    scene = SceneSpec(random_camera_pose(config.sim, None), tuple(objects))
-    with SimWorld(config, seed=2027, scene=scene) as world, SimCamera(world) as camera:
-        world.advance(0.1)
-        frame = camera.read()
-        truth = world.ground_truth()
-        q = SimArm(world).get_joint_positions()
-    found = GeometricDetector(seed=2027).detect(
-        frame, FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q)
-    )
-    T_cam_base = inv_T(truth.T_base_cam)
-    true = [
-        (
-            s.spec.kind,
-            s.spec.label,
-            transform_points(T_cam_base @ s.T_base_obj, [0.0, 0.0, s.spec.height / 2]),
-            s.spec.height,
-        )
-        for s in truth.objects
-    ]
+    placed, found = detect_placed(config, 2027, tuple(objects))
+    true = [(spec.kind, spec.label, center, spec.height) for spec, center in placed]
     return true, found
 
 

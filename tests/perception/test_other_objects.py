@@ -7,15 +7,11 @@ import dataclasses
 import math
 
 import numpy as np
+from tests.perception.helpers import detect_placed
 
 from armvision.config import Config
-from armvision.geometry import inv_T, transform_points
-from armvision.perception.detection import FrameContext
 from armvision.perception.geometric import GeometricDetector
-from armvision.sim.arm import SimArm
-from armvision.sim.camera import SimCamera
-from armvision.sim.scene import SceneSpec, random_camera_pose, random_cluttered_object
-from armvision.sim.world import SimWorld
+from armvision.sim.scene import random_cluttered_object
 
 RNG = np.random.default_rng(4242)
 
@@ -89,21 +85,10 @@ def test_a_rendered_can_cup_and_box() -> None:
         dataclasses.replace(random_cluttered_object(rng, kind, kind), x=x, y=y)
         for kind, (x, y) in placed.items()
     )
-    config = Config()
-    scene = SceneSpec(random_camera_pose(config.sim, None), objects)
-    with SimWorld(config, seed=5151, scene=scene) as world, SimCamera(world) as camera:
-        world.advance(0.1)
-        frame = camera.read()
-        truth = world.ground_truth()
-        q = SimArm(world).get_joint_positions()
-    detections = GeometricDetector(seed=5151).detect(
-        frame, FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q)
-    )
-    T_cam_base = inv_T(truth.T_base_cam)
+    placed, detections = detect_placed(Config(), 5151, objects)
     labels = {}
-    for state in truth.objects:
-        c = transform_points(T_cam_base @ state.T_base_obj, [0.0, 0.0, state.spec.height / 2])
+    for spec, c in placed:
         near = [d for d in detections if np.linalg.norm(d.center_cam - c) < 0.05]
-        assert near, f"{state.spec.kind} not detected: {detections}"
-        labels[state.spec.kind] = near[0].label
+        assert near, f"{spec.kind} not detected: {detections}"
+        labels[spec.kind] = near[0].label
     assert labels == {"can": "other", "cup": "cup", "box": "other"}
