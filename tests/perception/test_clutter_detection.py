@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from tests.perception.helpers import detect_placed
 
-from armvision.camera.frames import Intrinsics
+from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import load_config
 from armvision.perception.geometric import GeometricDetector
 from armvision.sim.scene import random_cluttered_object
@@ -119,6 +119,19 @@ def _disc(radius: float, height: float, n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(a), 0.6 + r * np.sin(a), np.full(n, height)])
 
 
+def _blank_frame() -> RGBDFrame:
+    """A grey frame with no depth (the rules judged here read the cluster's points)."""
+    color = np.full((INTR.height, INTR.width, 3), 128, np.uint8)
+    depth = np.zeros((INTR.height, INTR.width), np.float32)
+    return RGBDFrame(color=color, depth=depth, intrinsics=INTR, timestamp=0.0, index=0)
+
+
+def _level_plane() -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """The table 0.3 m below a level camera: (normal, offset, e1, e2), so that (u, w) is
+    (x, z) in the camera frame and (0, 0.6) lies 0.6 m ahead."""
+    return np.array([0.0, -1.0, 0.0]), 0.3, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+
+
 def _label(uw: np.ndarray, h: np.ndarray, radius: float) -> str:
     det = GeometricDetector()
     center = np.array([0.0, 0.6])
@@ -154,3 +167,44 @@ def test_a_round_top_is_not_a_neck() -> None:
     r = 0.038 * np.sqrt(1.0 - t**2)
     apple = np.column_stack([r * np.cos(a), 0.6 + r * np.sin(a), 0.038 * (1.0 + t)])
     assert _label(apple[:, :2], apple[:, 2], 0.03) != "bottle"
+
+
+def test_a_lid_under_a_raised_ring_is_closed_an_inside_is_not() -> None:
+    # A can seen from above: its near wall ends at the lid (10 cm); the far half is the lid,
+    # with a pull ring and flying pixels up to a centimetre above it, as on PoseCNN's frames.
+    det = GeometricDetector()
+    center = np.array([0.0, 0.6])
+    wall = _ring(0.033, 0.012, 0.10, 400)
+    lid = _disc(0.031, 0.10, 200)
+    lid[:, 2] += RNG.normal(0.0, 0.002, len(lid))
+    ring = _disc(0.01, 0.108, 15)
+    uw, h = _cluster(wall, lid, ring)
+    top = float(np.sort(h)[-5])  # the detector's top: the 5th highest point, on the ring
+    assert top > 0.107  # on the ring
+    assert det._rim(uw, h, center, 0.033, top) == pytest.approx(0.10, abs=0.005)  # lid noise
+    assert not det._shows_inside(uw, h, center, 0.033, top)
+    # A mug: the far half is its inner wall, from the rim down to the bottom.
+    inner = _ring(0.031, 0.02, 0.10, 300, front_only=False)
+    inner = inner[inner[:, 1] > 0.6]  # the far inner wall, seen over the near rim
+    uw, h = _cluster(wall, inner)
+    assert det._shows_inside(uw, h, center, 0.033, float(np.sort(h)[-5]))
+
+
+def test_a_box_face_with_no_depth_is_not_clear_plastic_a_sliver_may_be() -> None:
+    """A cluster with no round wall whose side points lie on one line is a box's face (the
+    potted-meat can on PoseCNN's frames: shiny metal, half its depth missing), so the
+    see-through rule does not make it a cup; a narrow sliver (a clear bottle seen past a
+    nearer one) is not judged."""
+    det = GeometricDetector()
+    rng = np.random.default_rng(3)
+    face = np.column_stack([rng.uniform(-0.04, 0.04, 400), 0.6 + rng.normal(0, 0.001, 400)])
+    top = _disc(0.04, 0.09, 200)
+    uw = np.concatenate([face, top[:, :2] + [0.0, 0.04]])
+    h = np.concatenate([rng.uniform(0.012, 0.09, 400), top[:, 2]])
+    frame = _blank_frame()
+    fitted = det._fit_cluster(frame, uw, h, np.full(len(h), 0.6), *_level_plane())
+    assert fitted is not None and fitted[0].label == "other" and fitted[1]  # planar
+    sliver = np.column_stack([rng.uniform(-0.01, 0.01, 60), 0.6 + rng.normal(0, 0.001, 60)])
+    hs = rng.uniform(0.012, 0.2, 60)
+    fitted = det._fit_cluster(frame, sliver, hs, np.full(60, 0.6), *_level_plane())
+    assert fitted is not None and not fitted[1]

@@ -110,7 +110,10 @@ class GeometricDetector:
     height is that body top / ``bottle_body_fraction`` (a shape prior: the simulated bottles'
     body is 72 % of their height). (7) Nearest first, an object whose front surface returns
     no depth over at least ``clear_share`` of it (boxes of nearer clear objects left out) and
-    ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup. Only
+    ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup; not a
+    cluster with no round wall whose sides (below 0.75 x its top) lie within
+    ``flat_face_rms`` of one line over at least 1.5 x ``clear_min_radius`` of width: one
+    planar face, a box of shiny metal or foil that returned no depth. Only
     every ``pixel_stride``-th pixel and row is used, and circle fits use at most
     ``max_fit_points`` points.
 
@@ -122,14 +125,17 @@ class GeometricDetector:
     percentile at least ``wide_top_ratio`` x the radius: a can stack or canister). A closed
     top: of the points inside the rim (nearer the axis than ``closed_top_inner`` x the radius,
     at least ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies
-    within ``closed_top_tolerance`` of the top (a can, box or block); a short object with one
+    within ``closed_top_tolerance`` of the rim (the near wall's 99th-percentile height, at
+    most the top: a can's pull ring or flying pixels rise above its lid) (a can, box or
+    block); a short object with one
     and no bottle evidence is other. A would-be cup is also other when wide and short (radius
     above ``bowl_min_radius`` and height below ``bowl_height_ratio`` x the diameter: a bowl),
     when its camera-facing wall fits two straight lines (a box's faces) with an RMS distance
     below ``straight_wall_ratio`` x that of the circle, the circle's being above
     ``straight_wall_min_rms``, or when seen from ``inside_min_elevation_deg`` or more above
-    with its far top in view it shows no inside (no points on its far half below the rim: a
-    can or box whose top returned no depth).
+    with its far top in view it shows no inside (fewer than ``closed_top_min_points``, or a
+    fifth, of the points on its far half below the rim: a can's lid, or a box whose top
+    returned no depth).
 
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
@@ -184,6 +190,7 @@ class GeometricDetector:
         fit_tolerance: float = 2e-5,
         contained_fraction: float = 0.8,
         contained_margin: float = 0.006,
+        flat_face_rms: float = 0.003,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
@@ -194,6 +201,7 @@ class GeometricDetector:
         self.fit_tolerance = float(fit_tolerance)
         self.contained_fraction = float(contained_fraction)
         self.contained_margin = float(contained_margin)
+        self.flat_face_rms = float(flat_face_rms)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
         self.max_range = float(max_range)
@@ -270,9 +278,9 @@ class GeometricDetector:
         order = np.argsort(labels, kind="stable")
         bounds = np.flatnonzero(np.diff(labels[order])) + 1
         clusters = [m for m in np.split(order, bounds) if labels[m[0]] > 0]
-        detections = []
+        detections, planar = [], []
         for members, circle in self._merge_contained(clusters, uw, p_cam[:, 2]):
-            det = self._fit_cluster(
+            fitted = self._fit_cluster(
                 frame,
                 uw[members],
                 h[idx[members]],
@@ -283,9 +291,10 @@ class GeometricDetector:
                 e2,
                 circle,
             )
-            if det is not None:
-                detections.append(det)
-        return self._clear_containers(frame, detections, normal, offset, e1, e2)
+            if fitted is not None:
+                detections.append(fitted[0])
+                planar.append(fitted[1])
+        return self._clear_containers(frame, detections, planar, normal, offset, e1, e2)
 
     # ---------------------------------------------------------------- steps
 
@@ -434,7 +443,9 @@ class GeometricDetector:
         e1: Array,
         e2: Array,
         circle: _Circle | None = None,
-    ) -> Detection | None:
+    ) -> tuple[Detection, bool] | None:
+        """The cluster's detection, and whether it is one planar face: no round wall and its
+        points within ``flat_face_rms`` (RMS) of one line in the table plane."""
         sigma = self._sigma(z)
         if circle is None:
             circle = self._wall_circle(uw, sigma)
@@ -442,6 +453,7 @@ class GeometricDetector:
         top = float(np.partition(h, len(h) - k)[len(h) - k])
         if top < self.min_object_height:
             return None
+        planar = False
         if circle is None or not self._radius_ok(circle[1]):
             # No round wall: a box's face seen flat (its grazing side cut off as a depth
             # edge), or a shapeless cluster. Kept as an obstacle if it is small enough.
@@ -450,6 +462,11 @@ class GeometricDetector:
                 return None
             label: Label = "other"
             center, radius, res, wall = circle
+            # A face at least 1.5 x clear_min_radius wide (not a sliver of a clear object
+            # seen past a nearer one) on one line below its top (which fills an area).
+            side = uw[h < 0.75 * top]
+            wide = radius >= 1.5 * self.clear_min_radius and len(side) >= 20
+            planar = wide and _line_ss(side) < len(side) * self.flat_face_rms**2
         else:
             center, radius, res, wall = circle
             label = self._classify(uw, h, center, radius, top, res, wall)
@@ -477,7 +494,7 @@ class GeometricDetector:
         fit_fraction = float((np.abs(res[wall]) < 2.5 * sigma).mean())
         score = fit_fraction * min(1.0, n_wall / self.full_support_points)
         center_cam = foot_cam + 0.5 * top * normal
-        return Detection(
+        det = Detection(
             label=label,
             score=score,
             box=cylinder_box(frame.intrinsics, center_cam, normal, radius, top),
@@ -487,11 +504,13 @@ class GeometricDetector:
             height=top,
             axis_cam=normal.copy(),
         )
+        return det, planar
 
     def _clear_containers(
         self,
         frame: RGBDFrame,
         detections: list[Detection],
+        planar: Sequence[bool],
         normal: Array,
         offset: float,
         e1: Array,
@@ -517,7 +536,8 @@ class GeometricDetector:
             if share < self.clear_share:
                 continue
             clear_boxes.append(det.box)
-            if det.label != "bottle" and det.radius >= self.clear_min_radius:
+            clear = det.label != "bottle" and det.radius >= self.clear_min_radius
+            if clear and not planar[i]:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
                 out[i] = dataclasses.replace(det, label=label)
         return out
@@ -684,7 +704,7 @@ class GeometricDetector:
         if upper.sum() >= 5:
             neck = float(np.percentile(r[upper], 90)) < self.neck_ratio * radius
         gap, capped = self._gap(r, h, radius)
-        closed = self._closed_top(r, h, radius, top)
+        closed = self._closed_top(r, h, radius, self._rim(uw, h, center, radius, top))
         if top >= self.bottle_min_height and not neck and not gap:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
             # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
@@ -778,16 +798,31 @@ class GeometricDetector:
         hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
         return int((~hidden).sum()) >= len(ring) // 2
 
+    def _rim(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> float:
+        """Height of the object's rim: the 99th percentile of its near wall (more than half
+        the radius toward the camera), at most ``top``. The highest points overall may be
+        a can's pull ring or the flying pixels along its far edge, a centimetre above the
+        lid on a real D435 frame; the near wall ends where the lid or rim is."""
+        to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
+        near = (uw - center) @ to_cam > 0.5 * radius
+        if int(near.sum()) < 10:
+            return top
+        return min(top, float(np.percentile(h[near], 99.0)))
+
     def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> bool:
         """Whether the cluster shows the inside of an open vessel: at least
         ``closed_top_min_points`` points on the far half (beyond 0.2 x the radius past the
-        axis, seen from the camera) and more than ``closed_top_tolerance`` below the top: the
-        inner far wall under the rim, or the liquid. A can's or box's far half shows only its
-        top, at rim height."""
+        axis, seen from the camera), at least a fifth of them more than
+        ``closed_top_tolerance`` below the rim (:meth:`_rim`): the inner far wall under the
+        rim, or the liquid (an empty cup seen from 35 degrees above shows 40 %). A can's or
+        box's far half shows only its top, at rim height (1 % on PoseCNN's soup can)."""
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
         far = (uw - center) @ to_cam < -0.2 * radius
-        below = h < top - self.closed_top_tolerance
-        return int((far & below).sum()) >= self.closed_top_min_points
+        if int(far.sum()) < self.closed_top_min_points:
+            return False
+        rim = self._rim(uw, h, center, radius, top)
+        below = h[far] < rim - self.closed_top_tolerance
+        return int(below.sum()) >= self.closed_top_min_points and float(below.mean()) >= 0.2
 
     def _gap(self, r: Array, h: Array, radius: float) -> tuple[bool, bool]:
         """(gap, capped): whether the height profile has a gap of at least ``bottle_gap``
