@@ -20,6 +20,7 @@ from armvision.camera.frames import Intrinsics, RGBDFrame, project
 from armvision.config import Config
 from armvision.errors import PerceptionError
 from armvision.eval.liquid import evaluate_liquid
+from armvision.perception.detection import Detection
 from armvision.perception.liquid import (
     ContainerGeometry,
     LiquidLevelMeter,
@@ -243,6 +244,47 @@ def test_profile_uses_a_known_geometry() -> None:
     level = LiquidLevelMeter().measure(frame, (x0 + 5, y0, x1 - 5, y1), short)
     assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
     assert level.body_height_m is not None and abs(level.body_height_m - 0.15) <= 0.005
+
+
+def test_a_detection_gives_the_table_plane_and_the_same_fill() -> None:
+    """``ContainerGeometry.of`` a detection with an axis (the geometric detector's table
+    normal): the table plane through its foot, as worked out by hand from the camera pose
+    (the table is z = 0 in the world, so up is the world's z seen from the camera); the meter
+    uses it instead of fitting one, and reads the same fill."""
+    frame, box, true_fill = _render_bottle(0.45)
+    R_world_cam, p_world_cam = _camera()
+    centre_cam = (np.array([0.0, 0.6, 0.1]) - p_world_cam) @ R_world_cam
+    up_cam = R_world_cam.T @ np.array([0.0, 0.0, 1.0])
+    det = Detection("bottle", 1.0, box, centre_cam, np.array([0.06, 0.2, 0.06]), 0.03, 0.2, up_cam)
+    geometry = ContainerGeometry.of(det)
+    assert geometry.table is not None
+    np.testing.assert_allclose(geometry.table[0], up_cam, atol=1e-12)
+    # The camera is 0.45 m above the table: up . p_cam + offset = 0 for the table's points.
+    foot_cam = (np.array([0.0, 0.6, 0.0]) - p_world_cam) @ R_world_cam
+    assert geometry.table[1] == pytest.approx(-up_cam @ foot_cam, abs=1e-12)
+    assert geometry.table[1] == pytest.approx(0.45, abs=1e-12)
+    level = LiquidLevelMeter().measure(frame, box, geometry)
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.03
+    # Overrides (a held bottle's known size) keep the detection's table.
+    held = ContainerGeometry.of(det, radius=0.031, height=0.21)
+    assert (held.radius, held.height, held.table) == (0.031, 0.21, geometry.table)
+    # No axis (a network's box): the meter fits the table itself.
+    assert ContainerGeometry.of(dataclasses.replace(det, axis_cam=None)).table is None
+
+
+def test_a_body_search_that_starts_at_the_top_ends_there() -> None:
+    """When the first depth level puts the body's floor within the last centimetre of the
+    bottle (a full bottle whose level reads at the shoulder), the shoulder search has no rows
+    left: it returns the floor instead of failing on an empty run (a ValueError it raised
+    on some cluttered scenes)."""
+    frame, box, _ = _render_bottle(0.5)
+    meter = LiquidLevelMeter()
+    bf = meter._bottle_frame(frame, box, ContainerGeometry(), meter._table(frame, box), 0.72)
+    s = np.arange(0.0, bf.top, meter.step_m)
+    body, found = meter._body_top(frame, bf, s, floor=bf.top - 0.005)
+    assert found and bf.top - 0.01 <= body <= bf.top
+    body, found = meter._body_top(frame, bf, s, floor=0.06)  # the ordinary search
+    assert found and abs(body - 0.15) <= 0.005
 
 
 def test_bad_inputs_say_what_to_do() -> None:

@@ -54,9 +54,7 @@ def _perceive_frame(config: Config, frame, T_base_cam=None, joint_positions=None
     )
     meter = LiquidLevelMeter()
     levels = [
-        meter.measure(frame, d.box, ContainerGeometry(tuple(d.center_cam), d.radius, d.height))
-        if d.label == "bottle"
-        else None
+        meter.measure(frame, d.box, ContainerGeometry.of(d)) if d.label == "bottle" else None
         for d in detections
     ]
     image = annotate(frame.color, frame.intrinsics, tags, detections, levels, config.tag.size)

@@ -86,7 +86,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, pixel_box, project
 from armvision.errors import PerceptionError
-from armvision.perception.detection import BOTTLE_BODY_FRACTION
+from armvision.perception.detection import BOTTLE_BODY_FRACTION, Detection
 from armvision.perception.fitting import fit_plane
 
 Array = NDArray[np.float64]
@@ -142,12 +142,34 @@ class ContainerGeometry:
     """What an object detector may know about the container, camera frame, metres.
 
     ``centre_cam``: any point on the container's axis (the cylinder fit's centre); ``radius``
-    the outer radius; ``height`` the whole height, cap included. Each may be None.
+    the outer radius; ``height`` the whole height, cap included; ``table`` the plane it
+    stands on, (up, offset) with ``up . p + offset = 0`` and ``up`` toward the camera (the
+    geometric detector's RANSAC plane over the whole table: the meter then skips its own
+    fit around the box). Each may be None.
     """
 
     centre_cam: tuple[float, float, float] | None = None
     radius: float | None = None
     height: float | None = None
+    table: tuple[tuple[float, float, float], float] | None = None
+
+    @classmethod
+    def of(
+        cls, det: Detection, radius: float | None = None, height: float | None = None
+    ) -> ContainerGeometry:
+        """What ``det`` knows of an upright container (``radius``/``height`` override its
+        own): its centre, size and, when it has an axis (the table normal), the table plane
+        through its foot."""
+        radius = det.radius if radius is None else radius
+        height = det.height if height is None else height
+        centre = np.asarray(det.center_cam, dtype=float)
+        table = None
+        if det.axis_cam is not None:
+            up = np.asarray(det.axis_cam, dtype=float)
+            foot = centre - 0.5 * det.height * up
+            table = ((float(up[0]), float(up[1]), float(up[2])), float(-up @ foot))
+        c = (float(centre[0]), float(centre[1]), float(centre[2]))
+        return cls(c, radius, height, table)
 
 
 def _check_inputs(frame: RGBDFrame, box: ArrayLike) -> tuple[int, int, int, int]:
@@ -694,6 +716,8 @@ class LiquidLevelMeter:
         # edge_threshold / 2 on every counted side) ends the search; a faint clear wall in
         # the body still shows one.
         w = max(round(self.gap_m / self.step_m), 2)
+        if stop - first < w:  # the depth level already put the body's top near the top
+            return float(s[min(first, len(s) - 1)]), True
         blank = (faint < 0.5 * self.edge_threshold).astype(float)
         run = np.convolve(blank[first:stop], np.ones(w) / w, mode="valid")
         gaps = np.flatnonzero(run >= 2.0 / 3.0)
@@ -717,7 +741,10 @@ class LiquidLevelMeter:
             crop = np.ascontiguousarray(frame.color[ibox[1] : ibox[3], ibox[0] : ibox[2]])
             why = f"the bottle is cut by the image's {cut} border: its liquid cannot be read"
             return LiquidLevel(None, None, 0.0, None, "profile", crop.copy(), unknown=why)
-        table = self._table(frame, fbox)
+        if geometry.table is not None:
+            table = (np.asarray(geometry.table[0], dtype=float), float(geometry.table[1]))
+        else:
+            table = self._table(frame, fbox)
         bf = self._bottle_frame(frame, fbox, geometry, table, self.body_fraction)
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
         rays = self._rays(frame, ibox, bf, r_liq, stride=2)  # a first look: every 4th pixel

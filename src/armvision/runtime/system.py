@@ -363,7 +363,7 @@ class System:
         history = self._levels.setdefault(track_id, deque(maxlen=self.config.runtime.liquid_window))
         if history and history[-1][0] >= frame.timestamp:
             return False  # this frame was measured already
-        geometry = ContainerGeometry(tuple(det.center_cam), det.radius, det.height)
+        geometry = ContainerGeometry.of(det)
         level = self.liquid_meter.measure(frame, det.box, geometry)
         history.append((frame.timestamp, level))
         self.store.set_liquid(track_id, average_levels(track_id, list(history)))

@@ -338,7 +338,7 @@ class _Analyze:
             det = self._detection_near(state, self.follow(state))
             if det is None:
                 return None
-            return det.box, ContainerGeometry(tuple(det.center_cam), det.radius, det.height)
+            return det.box, ContainerGeometry.of(det)
 
         return target
 
@@ -555,7 +555,7 @@ class _Analyze:
             c_base = T_base_cam[:3, :3] @ det.center_cam + T_base_cam[:3, 3]
             foot = [c_base[0], c_base[1], held.table_z]
             box = bottle_box(intr, T_cam_base, foot, held.radius, held.height)
-            return box, ContainerGeometry(tuple(det.center_cam), held.radius, held.height)
+            return box, ContainerGeometry.of(det, held.radius, held.height)
 
         return target
 
