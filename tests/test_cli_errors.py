@@ -73,6 +73,7 @@ def test_seeds_out_of_range(capsys, command, seed):
     [
         (["eval", "liquid", "--n", "0"], "--n"),
         (["eval", "liquid", "--n", "-5"], "--n"),
+        (["eval", "liquid", "--boxes", "network"], "--boxes"),
         (["eval", "grab", "--trials", "0"], "--trials"),
         (["eval", "fusion", "--waypoints", "1"], "--waypoints"),
         (["eval", "perception", "--seeds", "5-2"], "--seeds"),

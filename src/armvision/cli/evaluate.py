@@ -38,11 +38,12 @@ def cmd_eval_perception(args: argparse.Namespace, config: Config) -> int:
 def cmd_eval_liquid(args: argparse.Namespace, config: Config) -> int:
     from armvision.eval.liquid import evaluate_liquid
 
-    result = evaluate_liquid(config, args.n, args.seed)
+    result = evaluate_liquid(config, args.n, args.seed, boxes=args.boxes)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        _print_summary(f"liquid level, {args.n} bottles from seed {args.seed}", result["summary"])
+        title = f"liquid level, {args.n} bottles from seed {args.seed}, {args.boxes} boxes"
+        _print_summary(title, result["summary"])
     return 0
 
 

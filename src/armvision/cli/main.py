@@ -207,6 +207,13 @@ def _add_eval_parsers(eval_sub: Any) -> None:
         "--n", type=int_in(1, 10_000, "a count"), default=50, help="bottles (default 50)"
     )
     liquid.add_argument("--seed", type=seed, default=0)
+    liquid.add_argument(
+        "--boxes",
+        choices=("truth", "detector"),
+        default="truth",
+        help="what the meter is given: the true bottle's box (the meter alone, the default), "
+        "or the geometric detector's box and geometry (the system end to end)",
+    )
     liquid.add_argument("--json", action="store_true", help="one JSON object on stdout")
     liquid.set_defaults(func=cmd_eval_liquid)
     fusion = eval_sub.add_parser(

@@ -51,6 +51,7 @@ from armvision.perception.fitting import (
     fit_plane,
     unit_depth_rays,
 )
+from armvision.perception.liquid import bottle_outline
 from armvision.perception.selfmask import VX300S_CAPSULES, self_mask
 from armvision.robot.kinematics import VX300S, ArmModel
 
@@ -74,6 +75,23 @@ def cylinder_box(
         [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
     )
     uv = project(intr, rims[rims[:, 2] > 1e-3])
+    if len(uv) == 0:
+        return (0.0, 0.0, 0.0, 0.0)
+    w, h = intr.width, intr.height
+    x0, y0, x1, y1 = np.clip(pixel_box(uv), 0, [w, h, w, h])
+    return (float(x0), float(y0), float(x1), float(y1))
+
+
+def bottle_box(
+    intr: Intrinsics, foot_cam: Array, axis_cam: Array, radius: float, height: float
+) -> tuple[float, float, float, float]:
+    """Pixel box of an upright bottle standing at ``foot_cam``: the liquid meter's bottle
+    model (body to the shoulder, then the cap's narrower width, see
+    :func:`~armvision.perception.liquid.bottle_outline`) projected and clipped. Tighter than
+    the whole cylinder's box where a bottle seen from above narrows to its cap, and the box
+    the meter fits its model to."""
+    outline = bottle_outline(foot_cam, axis_cam, radius, height, BOTTLE_BODY_FRACTION)
+    uv = project(intr, outline[outline[:, 2] > 1e-3])
     if len(uv) == 0:
         return (0.0, 0.0, 0.0, 0.0)
     w, h = intr.width, intr.height
@@ -497,7 +515,11 @@ class GeometricDetector:
         det = Detection(
             label=label,
             score=score,
-            box=cylinder_box(frame.intrinsics, center_cam, normal, radius, top),
+            box=(
+                bottle_box(frame.intrinsics, foot_cam, normal, radius, top)
+                if label == "bottle"
+                else cylinder_box(frame.intrinsics, center_cam, normal, radius, top)
+            ),
             center_cam=center_cam,
             size=np.array([2.0 * radius, top, 2.0 * radius]),
             radius=float(radius),
@@ -539,7 +561,10 @@ class GeometricDetector:
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
             if clear and not planar[i]:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
-                out[i] = dataclasses.replace(det, label=label)
+                box = det.box
+                if label == "bottle":
+                    box = bottle_box(frame.intrinsics, foot, normal, det.radius, det.height)
+                out[i] = dataclasses.replace(det, label=label, box=box)
         return out
 
     def _see_through(

@@ -649,7 +649,13 @@ class LiquidLevelMeter:
         return (to_cam @ bf.up) / np.maximum(-(to_cam @ bf.away), 1e-9)
 
     def _body_top(
-        self, frame: RGBDFrame, bf: _Frame3D, s: Array, floor: float, search_wall: bool = False
+        self,
+        frame: RGBDFrame,
+        bf: _Frame3D,
+        s: Array,
+        floor: float,
+        search_wall: bool = False,
+        empty_from: float | None = None,
     ) -> tuple[float, bool]:
         """Height of the shoulder: the top of the body's straight silhouette edges.
 
@@ -667,7 +673,9 @@ class LiquidLevelMeter:
         body top is the best single step from body rows (below) to the rest
         (:func:`_step_split`) between 8 mm above the table and 10 mm below the top. Returns
         (height, found); with no side showing the wall, ``body_fraction`` of the height, a
-        prior, and found False.
+        prior, and found False. ``search_wall`` (a detector's geometry): the band is centred on
+        each side's wall as :meth:`_wall_offsets` finds it in the empty body just above
+        ``empty_from`` (the first depth level), else in the lowest third.
         """
         r = bf.radius
         start = int(np.searchsorted(s, self.base + 0.005))
@@ -676,7 +684,19 @@ class LiquidLevelMeter:
             return self.body_fraction * bf.top, False
         lowest = slice(start, start + (stop - start) // 3)
         first = max(int(np.searchsorted(s, floor)), start)
-        walls = self._wall_offsets(frame, bf, s[lowest][::2]) if search_wall else (r, r)
+        walls = (r, r)
+        if search_wall:
+            # Where the wall's silhouette shows alone: the empty body above the first depth
+            # level (below it the liquid's own edge, a wall's thickness inside, is the
+            # stronger), at most 4 cm of it and below 55 % of the height (no shoulder yet);
+            # a bottle full to there: the lowest third.
+            rows = s[lowest][::2]
+            if empty_from is not None:
+                top_row = min(empty_from + 0.04, 0.55 * bf.top)
+                upper = s[(s > empty_from + 0.005) & (s < top_row)][::2]
+                if len(upper) >= 8:
+                    rows = upper
+            walls = self._wall_offsets(frame, bf, rows)
         # The strip at 0.5 mm steps, sampled where it matters only: on each side the band
         # around that side's wall and 1 mm beyond it, and the background 1.2-1.5 times as far.
         grid = np.arange(-1.5 * r, 2.0 * r, 0.0005)  # the phase of the validated sampling
@@ -757,7 +777,8 @@ class LiquidLevelMeter:
             floor = max(floor, first[0] - 0.003, self._wall_top(rays, bf) - 0.005)
         s = np.arange(0.0, bf.top, self.step_m)
         search = geometry.radius is not None  # a detector's radius: its box may be narrow
-        body, shoulder_found = self._body_top(frame, bf, s, floor, search)
+        empty_from = first[0] if first is not None and first[0] < bf.top - self.cap_m else None
+        body, shoulder_found = self._body_top(frame, bf, s, floor, search, empty_from)
         fraction = body / bf.top
         if shoulder_found and abs(fraction - self.body_fraction) > 0.02:
             # The box fit modelled the body as body_fraction of the height; with the body's
@@ -768,7 +789,7 @@ class LiquidLevelMeter:
             bf = refit
             if moved > 0.0005:  # else the band around the radius is where it was
                 s = np.arange(0.0, bf.top, self.step_m)
-                body, shoulder_found = self._body_top(frame, bf, s, floor, search)
+                body, shoulder_found = self._body_top(frame, bf, s, floor, search, empty_from)
         r = bf.radius
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
         rays = self._rays(frame, ibox, bf, r_liq)
@@ -945,23 +966,29 @@ class LiquidLevelMeter:
         narrower than the bottle (its depth is the liquid's), and then the wall's silhouette
         lies outside the band where the shoulder is looked for. So, per side, between 0.6 and
         1.5 times the radius, the outermost 0.5 mm column where a colour step beats the row's
-        median step by ``edge_threshold`` in at least 40 % of the rows is the wall; none
-        found: the radius. Only for a caller's geometry (a detector's): a box projected from
+        median step by ``edge_threshold`` in at least 40 % of the rows is the wall; a side
+        with none takes the other side's (the bottle is round; a faint clear wall may show on
+        one side only), neither: the radius. Only for a caller's geometry (a detector's): a
+        box projected from
         the bottle itself (the evaluation's) is not narrow, and a background edge persisting
         beside the bottle would only move the band off the wall.
         """
         r = bf.radius
         grid = np.arange(0.6 * r, 1.5 * r, 0.0005)
-        out = []
+        out: list[float | None] = []
         for side in (-1.0, 1.0):
             strip = self._strip(frame, bf, s, side * grid)
             g = np.linalg.norm(np.diff(strip, axis=1), axis=2)
             g = np.maximum(g, np.maximum(np.roll(g, 1, axis=1), np.roll(g, -1, axis=1)))
             edged = g - np.median(g, axis=1, keepdims=True) > self.edge_threshold
             columns = np.flatnonzero(edged.mean(axis=0) >= 0.4)
-            wall = 0.5 * (grid[columns[-1]] + grid[columns[-1] + 1]) if len(columns) else r
-            out.append(float(wall))
-        return out[0], out[1]
+            wall = 0.5 * (grid[columns[-1]] + grid[columns[-1] + 1]) if len(columns) else None
+            out.append(None if wall is None else float(wall))
+        left, right = out
+        # The bottle is round: a side whose faint wall shows no edge takes the other side's.
+        left = right if left is None else left
+        right = left if right is None else right
+        return (r, r) if left is None or right is None else (left, right)
 
     def _wall_top(self, rays: _Rays, bf: _Frame3D) -> float:
         """How high the front wall returns depth at the body's radius: the 95th percentile
