@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 from armvision.geometry import (
     R_to_rpy,
     adjoint,
+    cross3,
     inv_T,
     make_T,
     pose_error,
@@ -75,3 +76,10 @@ def test_adjoint_maps_twists_between_frames():
     V_a = T_a_b @ V_b @ np.linalg.inv(T_a_b)  # [V_a] = T [V_b] T^-1
     twist_a = adjoint(T_a_b) @ np.concatenate([w, v])
     np.testing.assert_allclose(twist_a, [V_a[2, 1], V_a[0, 2], V_a[1, 0], *V_a[:3, 3]], atol=1e-12)
+
+
+def test_cross3_is_the_cross_product() -> None:
+    rng = np.random.default_rng(11)
+    for a, b in rng.normal(size=(50, 2, 3)):
+        np.testing.assert_allclose(cross3(a, b), np.cross(a, b), rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(cross3([1, 0, 0], [0, 1, 0]), [0.0, 0.0, 1.0])  # x × y = z

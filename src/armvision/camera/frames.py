@@ -255,9 +255,12 @@ def project(intr: Intrinsics, points: ArrayLike) -> Array:
     _check_model(intr)
     p = np.atleast_2d(np.asarray(points, dtype=float))
     z = p[:, 2]
+    uv = np.empty((len(z), 2))
     with np.errstate(divide="ignore", invalid="ignore"):
         x, y = distort(intr, p[:, 0] / z, p[:, 1] / z)
-        uv = np.column_stack([x * intr.fx + intr.ppx, y * intr.fy + intr.ppy])
+        np.multiply(x, intr.fx, out=uv[:, 0])
+        np.multiply(y, intr.fy, out=uv[:, 1])
+    uv += (intr.ppx, intr.ppy)
     uv[z <= 0.0] = np.nan
     return uv
 

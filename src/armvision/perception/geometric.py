@@ -38,6 +38,7 @@ from armvision.camera.frames import (
     project,
 )
 from armvision.errors import PerceptionError
+from armvision.geometry import cross3
 from armvision.perception.detection import (
     BOTTLE_BODY_FRACTION,
     NO_CONTEXT,
@@ -64,11 +65,11 @@ def cylinder_box(
     intr: Intrinsics, center_cam: Array, axis_cam: Array, radius: float, height: float
 ) -> tuple[float, float, float, float]:
     """Pixel box (x0, y0, x1, y1) of a vertical cylinder: its rims' projection, clipped."""
-    e1 = np.cross(axis_cam, [1.0, 0.0, 0.0])
+    e1 = cross3(axis_cam, [1.0, 0.0, 0.0])
     if np.linalg.norm(e1) < 1e-6:
-        e1 = np.cross(axis_cam, [0.0, 1.0, 0.0])
+        e1 = cross3(axis_cam, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis_cam, e1)
+    e2 = cross3(axis_cam, e1)
     angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
     ring = radius * (np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2)
     rims = np.concatenate(
@@ -387,7 +388,7 @@ class GeometricDetector:
         """Two unit axes spanning the table plane (e1 near the camera's x axis)."""
         e1 = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
         e1 /= np.linalg.norm(e1)
-        return e1, np.cross(normal, e1)
+        return e1, cross3(normal, e1)
 
     def _cluster(self, uw: Array) -> NDArray[np.int32]:
         """Connected-component label (0 = none) per point, from a grid in the table plane."""

@@ -86,6 +86,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, pixel_box, project
 from armvision.errors import PerceptionError
+from armvision.geometry import cross3
 from armvision.perception.detection import BOTTLE_BODY_FRACTION, Detection
 from armvision.perception.fitting import fit_plane
 
@@ -325,9 +326,9 @@ CAP_RADIUS_FRACTION = 0.47
 def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
     """Two unit vectors (e1, e2) that span the plane normal to the unit vector ``up``."""
     up = np.asarray(up, dtype=float)
-    e1 = np.cross(up, [1.0, 0.0, 0.0])
+    e1 = cross3(up, [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    return e1, np.cross(up, e1)
+    return e1, cross3(up, e1)
 
 
 def unit_ring(up: ArrayLike, n: int = 24) -> Array:
@@ -569,7 +570,7 @@ class LiquidLevelMeter:
         away = foot - cam_foot
         away -= (away @ up) * up
         away /= np.linalg.norm(away)
-        lateral = np.cross(away, up)  # away x up: image right for an upright camera
+        lateral = cross3(away, up)  # away x up: image right for an upright camera
         if not 0.02 < top < 1.0:
             raise PerceptionError(
                 f"the container box spans {top:.3f} m of height above the table; expected a"
