@@ -265,6 +265,21 @@ def project(intr: Intrinsics, points: ArrayLike) -> Array:
     return uv
 
 
+def project_xyz(intr: Intrinsics, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[Array, Array]:
+    """Pixel coordinates (u, v) of camera-frame points given as coordinate arrays of any one
+    (broadcast) shape: :func:`project` without building an (N, 3) array, for dense grids of
+    points (the liquid meter's rectified strips). NaN where z <= 0."""
+    z = np.asarray(z, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xd, yd = distort(intr, np.asarray(x, dtype=float) / z, np.asarray(y, dtype=float) / z)
+        u = xd * intr.fx + intr.ppx
+        v = yd * intr.fy + intr.ppy
+    behind = np.broadcast_to(z <= 0.0, u.shape)
+    if behind.any():
+        u, v = np.where(behind, np.nan, u), np.where(behind, np.nan, v)
+    return u, v
+
+
 def _normalised_rays(intr: Intrinsics, uv: Array) -> tuple[Array, Array]:
     """Undistorted (x, y) = (X/Z, Y/Z) of pixels ``uv`` (N, 2)."""
     return undistort(intr, (uv[:, 0] - intr.ppx) / intr.fx, (uv[:, 1] - intr.ppy) / intr.fy)

@@ -84,7 +84,14 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, pixel_box, project
+from armvision.camera.frames import (
+    Intrinsics,
+    RGBDFrame,
+    deproject,
+    pixel_box,
+    project,
+    project_xyz,
+)
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3
 from armvision.perception.detection import BOTTLE_BODY_FRACTION, Detection
@@ -637,9 +644,16 @@ class LiquidLevelMeter:
     ) -> NDArray[np.float32]:
         """Colour (len(s), len(t), 3) sampled on the axis plane; rows ``s`` up, shift per cell."""
         ss = s[:, None] + (0.0 if shift is None else shift)
-        uv = project(frame.intrinsics, bf.points(ss, t[None, :]).reshape(-1, 3))
-        map_x = uv[:, 0].reshape(ss.shape[0], -1).astype(np.float32)
-        map_y = uv[:, 1].reshape(ss.shape[0], -1).astype(np.float32)
+        tt = t[None, :]
+        foot, up, lateral = bf.foot, bf.up, bf.lateral
+        u, v = project_xyz(
+            frame.intrinsics,
+            foot[0] + ss * up[0] + tt * lateral[0],
+            foot[1] + ss * up[1] + tt * lateral[1],
+            foot[2] + ss * up[2] + tt * lateral[2],
+        )
+        map_x = u.astype(np.float32)
+        map_y = v.astype(np.float32)
         return cv2.remap(
             frame.color, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
         ).astype(np.float32)
