@@ -27,7 +27,6 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse.csgraph import connected_components
 
 from armvision.camera.frames import (
     Intrinsics,
@@ -274,14 +273,14 @@ class GeometricDetector:
         the workspace crop, its joint angles the self-filter (see the class docstring)."""
         T_base_cam = _pose(context.T_base_cam)
         intr = frame.intrinsics
-        depth = np.asarray(frame.depth, dtype=np.float64)
+        depth = np.asarray(frame.depth)
         if depth.shape != (intr.height, intr.width):
             raise PerceptionError(
                 f"depth image is {depth.shape[1]}x{depth.shape[0]} but the intrinsics are "
                 f"{intr.width}x{intr.height}: align depth to colour before detecting"
             )
         rays, flat = unit_depth_rays(intr, self.pixel_stride)
-        z = depth.ravel()[flat]
+        z = depth.ravel()[flat].astype(np.float64)  # only the strided pixels
         normal, offset = self._table_plane(z, rays, T_base_cam)
         self.last_plane = (normal, offset)
         # Height of every pixel above the table: n.(z ray) + d, without building the cloud.
@@ -439,10 +438,12 @@ class GeometricDetector:
                 joins[i, j] = inside.mean() >= self.contained_fraction
         # Either way round: a cup's outer wall holds its inside, and the inside's own circle
         # (its far inner wall) may hold the outer wall's points.
-        _, group = connected_components(joins, directed=False)
+        group = _components(joins)
+        members_of: dict[int, list[int]] = {}
+        for k, g in enumerate(group.tolist()):
+            members_of.setdefault(g, []).append(k)
         out = []
-        for g in np.unique(group):
-            parts = [k for k in range(n) if group[k] == g]
+        for parts in members_of.values():  # in the order of their first (largest) cluster
             merged = np.concatenate([clusters[k] for k in parts])
             if len(merged) >= self.min_points:
                 out.append((merged, circles[parts[0]] if len(parts) == 1 else None))
@@ -906,6 +907,25 @@ class GeometricDetector:
         return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
 
 
+def _components(joins: NDArray[np.bool_]) -> NDArray[np.intp]:
+    """Component index per node of the undirected graph ``joins`` (n x n; a frame's clusters,
+    almost all of them alone): union-find over the few joined pairs. scipy's
+    connected_components first builds a sparse matrix, which costs more than this here."""
+    parent = list(range(len(joins)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in np.argwhere(joins & ~np.eye(len(joins), dtype=bool)):
+        ri, rj = root(int(i)), root(int(j))
+        if ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)
+    return np.array([root(i) for i in range(len(joins))], dtype=np.intp)
+
+
 def _in_image(intr: Intrinsics, p_cam: Array) -> tuple[Array, NDArray[np.bool_]]:
     """Camera-frame points' nearest pixels (N, 2) and which of them fall inside the image
     (points behind the camera project to NaN and do not)."""
@@ -916,7 +936,8 @@ def _in_image(intr: Intrinsics, p_cam: Array) -> tuple[Array, NDArray[np.bool_]]
 
 def _depth_at(frame: RGBDFrame, uv: Array) -> Array:
     """The frame's depth (m, 0 = none) at pixels ``uv`` (N, 2) inside the image."""
-    return np.asarray(frame.depth, dtype=float)[uv[:, 1].astype(int), uv[:, 0].astype(int)]
+    depth = np.asarray(frame.depth)
+    return depth[uv[:, 1].astype(int), uv[:, 0].astype(int)].astype(np.float64)
 
 
 def _line_ss(points: Array) -> float:
