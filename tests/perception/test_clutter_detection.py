@@ -208,3 +208,19 @@ def test_a_box_face_with_no_depth_is_not_clear_plastic_a_sliver_may_be() -> None
     hs = rng.uniform(0.012, 0.2, 60)
     fitted = det._fit_cluster(frame, sliver, hs, np.full(60, 0.6), *_level_plane())
     assert fitted is not None and not fitted[1]
+
+
+def test_joined_clusters_group_as_scipys_connected_components() -> None:
+    from scipy.sparse.csgraph import connected_components
+
+    from armvision.perception.geometric import _components
+
+    rng = np.random.default_rng(12)
+    assert len(_components(np.zeros((0, 0), bool))) == 0
+    for n in (1, 2, 7, 30, 120):
+        for _ in range(10):
+            joins = rng.random((n, n)) < 1.5 / n  # directed, as the containment test sets them
+            ours = _components(joins)
+            _, theirs = connected_components(joins, directed=False)
+            same_ours = ours[:, None] == ours[None, :]
+            np.testing.assert_array_equal(same_ours, theirs[:, None] == theirs[None, :])
