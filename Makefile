@@ -6,10 +6,12 @@ BIN    := $(VENV)/bin
 # MuJoCo, and chromium (with a font) for the UI's end-to-end tests, headless under Playwright.
 APT_PACKAGES := libusb-1.0-0 libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri chromium fonts-dejavu-core
 STAMP  := $(VENV)/.armvision-installed
+# Extras `make setup` installs; realsense is dropped (with a message) where pyrealsense2 has no wheel.
+EXTRAS := dev,realsense
 
 export MUJOCO_GL ?= egl
 
-.PHONY: setup system-packages demo test bench lint clean
+.PHONY: setup system-packages demo test bench lint check-wheels clean
 
 setup: system-packages $(STAMP)
 
@@ -17,11 +19,16 @@ system-packages:
 	@sh scripts/system-packages.sh $(APT_PACKAGES)
 
 # Reinstalled only when pyproject.toml changes, so a second `make setup` is instant.
+# resolve_platform.py --here asks pip what it would install here: where a package has no wheel
+# and must be compiled (pupil-apriltags on aarch64) it installs the build packages first, and it
+# leaves out an optional extra with no wheel (pyrealsense2 on aarch64 Python 3.11), saying why.
 $(STAMP): pyproject.toml
 	@sh scripts/check-python.sh $(PYTHON)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@extras=$$($(BIN)/python scripts/resolve_platform.py --here --extras $(EXTRAS) --optional realsense) && \
+	  echo "$(BIN)/python -m pip install --quiet -e '.[$$extras]'" && \
+	  $(BIN)/python -m pip install --quiet -e ".[$$extras]"
 	@touch $(STAMP)
 
 # The whole system on a simulated scene: calibrate, detect, analyse, grab; a report against the truth.
@@ -40,6 +47,10 @@ lint: setup
 	$(BIN)/ruff format --check src tests benchmarks
 	$(BIN)/lint-imports
 	$(BIN)/mypy
+
+# Not part of `make test` (both talk to PyPI). The aarch64 wheel table for Python 3.10-3.13:
+check-wheels: setup
+	$(BIN)/python scripts/resolve_platform.py
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache

@@ -47,6 +47,21 @@ def test_info_reports_every_backend_with_a_reason(tmp_path):
     assert text.returncode == 0 and "mujoco" in text.stdout
 
 
+def test_info_without_pyrealsense2_says_what_to_do_for_the_machine(monkeypatch):
+    from armvision.cli import info
+
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # makes `import pyrealsense2` fail
+    for machine, expected in [
+        ("x86_64", "pyrealsense2 not installed: pip install 'armvision[realsense]'"),
+        ("aarch64", "aarch64 wheels cover some Python versions only"),
+    ]:
+        monkeypatch.setattr(info.platform, "machine", lambda m=machine: m)
+        status = info.check_realsense()
+        assert not status.usable
+        assert expected in status.detail
+    assert "-DBUILD_PYTHON_BINDINGS=ON" in status.detail
+
+
 def test_config_prints_loadable_toml_with_overrides(tmp_path):
     result = run("--set", "tag.id=12", "--set", "robot.moving_time=1.25", "config", cwd=tmp_path)
     assert result.returncode == 0, result.stderr

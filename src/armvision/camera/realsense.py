@@ -32,9 +32,9 @@ _NOT_STARTED = "RealSenseCamera is not started: call start() or use `with camera
 _END_GRACE_S = 0.3
 
 _INSTALL_HINT = (
-    "install the RealSense SDK's Python bindings: `pip install pyrealsense2` (x86_64 and aarch64 "
-    "wheels; on a Jetson build librealsense with -DBUILD_PYTHON_BINDINGS=ON) or "
-    "`pip install armvision[realsense]`"
+    "install the RealSense SDK's Python bindings: `pip install pyrealsense2` (x86_64 wheels, and "
+    "aarch64 wheels for some Python versions only; where pip finds none, build librealsense with "
+    "-DBUILD_PYTHON_BINDINGS=ON) or `pip install armvision[realsense]`"
 )
 _PLUG_IN_HINT = (
     "plug the D435i into a USB 3 port (check with `rs-enumerate-devices` or `lsusb | grep 8086`), "

@@ -77,6 +77,22 @@ def check_mujoco(timeout_s: float = 60.0) -> BackendStatus:
     )
 
 
+def realsense_missing(machine: str) -> str:
+    """Why the camera is unavailable when pyrealsense2 is not installed, and what to do.
+
+    On aarch64 PyPI has pyrealsense2 wheels for some Python versions only (3.10 and 3.12, not
+    3.11 or 3.13, when the README's table was made), and `make setup` leaves it out where pip
+    finds none, so there the way out may be a source build."""
+    if machine in ("aarch64", "arm64"):
+        return (
+            "pyrealsense2 not installed; PyPI's aarch64 wheels cover some Python versions only "
+            "(`make check-wheels` lists them) and `make setup` leaves it out where there is "
+            "none: pip install 'armvision[realsense]' on one of those, or build librealsense "
+            "with -DBUILD_PYTHON_BINDINGS=ON"
+        )
+    return "pyrealsense2 not installed: pip install 'armvision[realsense]'"
+
+
 def check_realsense() -> BackendStatus:
     """Is pyrealsense2 installed, and which cameras are connected?"""
     from armvision.camera.realsense import connected_devices
@@ -84,8 +100,8 @@ def check_realsense() -> BackendStatus:
     try:
         version, devices = connected_devices()
     except ArmvisionError as exc:
-        if "No module named" in str(exc):
-            why = "pyrealsense2 not installed: pip install 'armvision[realsense]'"
+        if str(exc).startswith("cannot use a RealSense camera:"):  # _import_rs: not importable
+            why = realsense_missing(platform.machine())
         else:
             why = str(exc)
         return BackendStatus("realsense", False, why)
