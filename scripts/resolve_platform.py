@@ -27,6 +27,7 @@ import os
 import re
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import urllib.request
 from collections.abc import Callable, Iterable, Sequence
@@ -358,7 +359,9 @@ def render_table(rows: list[Row], pythons: list[str], direct: set[str]) -> str:
             quiet.append(row.need.name)
             continue
         spec = str(Requirement(row.need.requirement).specifier) or "any"
-        cells = [f"{row.need.name} {spec}", ", ".join(row.needed_by)]
+        # A direct dependency names its pyproject groups; another, the packages requiring it.
+        askers = row.need.needed_by if row.need.name in direct else row.needed_by
+        cells = [f"{row.need.name} {spec}", ", ".join(askers)]
         cells += [row.results[p].cell() for p in pythons]
         lines.append("| " + " | ".join(cells) + " |")
     if quiet:
@@ -374,10 +377,16 @@ def render_table(rows: list[Row], pythons: list[str], direct: set[str]) -> str:
 # --- make setup -------------------------------------------------------------------------------
 
 
-def build_packages(python: str) -> list[str]:
+def build_packages(python: str, have_headers: bool = False) -> list[str]:
     """Debian/Ubuntu packages that build a compiled sdist for this Python: C/C++ compilers,
-    CMake and the interpreter's headers (pythonX.Y-dev, as the venv's Python is that one)."""
-    return ["build-essential", "cmake", f"python{python}-dev"]
+    CMake and the interpreter's headers (pythonX.Y-dev, as the venv's Python is that one; not
+    when they are there, as for a Python built from source, which Debian has no -dev for)."""
+    return ["build-essential", "cmake", *([] if have_headers else [f"python{python}-dev"])]
+
+
+def python_headers_present() -> bool:
+    """Is this interpreter's Python.h installed (a venv's include path is its base's)?"""
+    return Path(sysconfig.get_paths()["include"], "Python.h").is_file()
 
 
 def choose_extras(
@@ -408,14 +417,14 @@ def choose_extras(
 
 
 def build_needs(
-    installs: dict[str, Result], python: str, where: str
+    installs: dict[str, Result], python: str, where: str, have_headers: bool = False
 ) -> tuple[list[str], list[str]]:
     """(Debian packages to install first, messages): the build packages if pip will compile
     a source distribution, else nothing."""
     compiled = sorted(name for name, r in installs.items() if r.status == SDIST_COMPILED)
     if not compiled:
         return [], []
-    apt = build_packages(python)
+    apt = build_packages(python, have_headers)
     return apt, [
         f"{', '.join(compiled)}: no wheel for {where}, only source that must be compiled; "
         f"installing a compiler, CMake and the Python headers first ({' '.join(apt)})"
@@ -456,6 +465,7 @@ def project_compiles(index_page: dict) -> bool:
 def setup_here(extras: list[str], optional: set[str], index: str) -> int:
     target = Target(python=f"{sys.version_info[0]}.{sys.version_info[1]}", here=True)
     where = target.describe()
+    headers = python_headers_present()
     pyproject = ROOT / "pyproject.toml"
     needs_by_extra = {"runtime": project_needs(pyproject, [])}
     for extra in extras:
@@ -511,7 +521,7 @@ def setup_here(extras: list[str], optional: set[str], index: str) -> int:
         )
         for name, (version, is_wheel) in parse_install_report(out).items()
     }
-    apt, build_messages = build_needs(installs, target.python, where)
+    apt, build_messages = build_needs(installs, target.python, where, headers)
     say_and_install(build_messages if apt and not _installed(apt) else [], apt)
     print(",".join(extras))
     return 0

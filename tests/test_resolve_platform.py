@@ -138,11 +138,11 @@ def test_project_needs_lists_each_package_once_with_everyone_who_asks(tmp_path: 
 def test_the_closure_follows_wheel_requirements_and_the_table_shows_what_is_not_a_wheel() -> None:
     # A hand-made world: app needs lib (wheel) which needs helper (sdist only on 3.12) and
     # tiny (wheel), and on 3.12 (a newer lib there) core too; tomli only below 3.11; tiny is
-    # also required by app itself.
+    # also required by app itself, tomli by lib.
     world = {
         ("app", "3.10"): rp.Result(rp.WHEEL, "1.0", requires=("lib>=2", "tiny")),
         ("app", "3.12"): rp.Result(rp.WHEEL, "1.0", requires=("lib>=2", "tiny")),
-        ("lib", "3.10"): rp.Result(rp.WHEEL, "2.1", requires=("helper", "tiny")),
+        ("lib", "3.10"): rp.Result(rp.WHEEL, "2.1", requires=("helper", "tiny", "tomli")),
         ("lib", "3.12"): rp.Result(rp.WHEEL, "3.0", requires=("helper", "tiny", "core==3.0")),
         ("core", "3.10"): rp.Result(rp.MISSING),  # would be, but lib 2.1 does not need it
         ("helper", "3.10"): rp.Result(rp.WHEEL, "0.3"),
@@ -166,6 +166,7 @@ def test_the_closure_follows_wheel_requirements_and_the_table_shows_what_is_not_
     assert len(asked) == 5 * 2 + 1  # each package once per version it is needed on
     assert ("core==3.0", "3.10") not in asked
     assert list(rows[3].needed_by) == ["app", "lib"]
+    assert list(rows[1].needed_by) == ["runtime", "lib"]  # the table shows "runtime" only
     table = rp.render_table(rows, ["3.10", "3.12"], {"app", "tomli"})
     assert table.splitlines() == [
         "| package | needed by | Python 3.10 | Python 3.12 |",
@@ -220,6 +221,9 @@ def test_setup_installs_build_packages_only_for_a_compiled_sdist() -> None:
         "compiled; installing a compiler, CMake and the Python headers first "
         "(build-essential cmake python3.11-dev)"
     ]
+    # A Python built from source (pyenv on Ubuntu 20.04) has its headers and no Debian -dev.
+    apt, _ = rp.build_needs(installs, "3.10", where, have_headers=True)
+    assert apt == ["build-essential", "cmake"]
 
 
 def test_the_install_report_says_which_come_from_a_wheel() -> None:
