@@ -489,7 +489,8 @@ def setup_here(extras: list[str], optional: set[str], index: str) -> int:
             print(f"armvision: {message}", file=sys.stderr)
         if apt:  # silent when they are there already
             script = ROOT / "scripts" / "system-packages.sh"
-            subprocess.run(["sh", str(script), *apt], check=True)
+            # apt's output goes to stderr: stdout carries only the extras, for the Makefile.
+            subprocess.run(["sh", str(script), *apt], check=True, stdout=sys.stderr)
 
     # Everything at once, as `pip install` will: on x86_64 this succeeds and setup goes on as
     # before. Where it fails, each direct requirement is asked alone: optional extras with a
