@@ -504,10 +504,10 @@ def setup_here(extras: list[str], optional: set[str], index: str) -> int:
             results = {n.name: r for n, r in zip(direct, resolved)}
         extras, messages = choose_extras(needs_by_extra, optional, results, where)
         kept = {n.name for g in ["runtime", *extras] for n in needs_by_extra[g]}
-        say_and_install(
-            messages,
-            *build_needs({k: v for k, v in results.items() if k in kept}, target.python, where),
+        apt, build_messages = build_needs(
+            {k: v for k, v in results.items() if k in kept}, target.python, where, headers
         )
+        say_and_install(messages + build_messages, apt)
         code, out, err = run_pip(pip_resolve_command(wanted(["runtime", *extras]), index))
         if code != 0:
             raise SystemExit(f"armvision: pip cannot resolve the dependencies here:\n{err}")
@@ -523,7 +523,8 @@ def setup_here(extras: list[str], optional: set[str], index: str) -> int:
         for name, (version, is_wheel) in parse_install_report(out).items()
     }
     apt, build_messages = build_needs(installs, target.python, where, headers)
-    say_and_install(build_messages if apt and not _installed(apt) else [], apt)
+    if apt and not _installed(apt):  # compiled sdists the direct requirements did not show
+        say_and_install(build_messages, apt)
     print(",".join(extras))
     return 0
 

@@ -243,3 +243,79 @@ def test_the_install_report_says_which_come_from_a_wheel() -> None:
         "numpy": ("2.2.6", True),
         "pupil-apriltags": ("1.0.4.post11", False),
     }
+
+
+def _report(*items: tuple[str, str, str]) -> str:
+    """A pip --report of (name, version, file name) items."""
+    return json.dumps(
+        {
+            "install": [
+                {"download_info": {"url": f"https://f/{f}"}, "metadata": {"name": n, "version": v}}
+                for n, v, f in items
+            ]
+        }
+    )
+
+
+def test_setup_here_on_aarch64_311_drops_realsense_and_installs_build_packages_first(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The whole flow with pip, the index and apt replaced by what they answered on arm64
+    Debian 12 (Python 3.11): the full resolution fails (pyrealsense2), each package alone says
+    why, the build packages are installed before pip is asked again, and the extras printed
+    leave realsense out."""
+    events: list[tuple[str, ...]] = []
+    second = _report(
+        ("numpy", "2.4.6", "numpy-2.4.6-cp311-cp311-manylinux_2_28_aarch64.whl"),
+        ("pupil_apriltags", "1.0.4.post11", "pupil_apriltags-1.0.4.post11.tar.gz"),
+    )
+    answers = iter([(1, "", "ERROR: No matching distribution found for pyrealsense2>=2.54"),
+                    (0, second, "")])  # fmt: skip
+
+    def run_pip(command):
+        events.append(("pip", "pyrealsense2>=2.54" in command))
+        return next(answers)
+
+    def resolve_one(requirement, target, index):
+        name = rp.Requirement(requirement).name
+        if name == "pyrealsense2":
+            return rp.Result(rp.MISSING)
+        if name == "pupil-apriltags":
+            return rp.Result(rp.SDIST_COMPILED, "1.0.4.post11")
+        return rp.Result(rp.WHEEL, "1")
+
+    def run(command, **kwargs):
+        if command[0] == "dpkg-query":  # the build packages are there by now
+            return rp.subprocess.CompletedProcess(command, 0, "installed", "")
+        events.append(("apt", *command[2:]))
+        return rp.subprocess.CompletedProcess(command, 0)
+
+    monkeypatch.setattr(rp, "run_pip", run_pip)
+    monkeypatch.setattr(rp, "resolve_one", resolve_one)
+    monkeypatch.setattr(rp, "fetch_index", lambda name, index: APRILTAGS_PAGE)
+    monkeypatch.setattr(rp, "python_headers_present", lambda: False)
+    monkeypatch.setattr(rp.subprocess, "run", run)
+    monkeypatch.setattr(rp.sys, "version_info", (3, 11, 2))
+    assert rp.setup_here(["dev", "realsense"], {"realsense"}, rp.PYPI) == 0
+    out, err = capsys.readouterr()
+    assert out == "dev\n"
+    assert events == [
+        ("pip", True),
+        ("apt", "build-essential", "cmake", "python3.11-dev"),
+        ("pip", False),  # asked again without pyrealsense2, after the build packages
+    ]
+    assert "pyrealsense2: no wheel and no source" in err
+    assert "pupil-apriltags: no wheel for Linux" in err and "(build-essential cmake" in err
+    assert err.count("pupil-apriltags") == 1  # said once, not again after the second resolution
+
+
+def test_setup_here_where_everything_resolves_asks_pip_once(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    calls = []
+    wheels = _report(("numpy", "2.4.6", "numpy-2.4.6-cp311-cp311-manylinux_2_28_x86_64.whl"))
+    monkeypatch.setattr(rp, "run_pip", lambda command: calls.append(command) or (0, wheels, ""))
+    assert rp.setup_here(["dev", "realsense"], {"realsense"}, rp.PYPI) == 0
+    assert capsys.readouterr() == ("dev,realsense\n", "")
+    assert len(calls) == 1
+    assert "pyrealsense2>=2.54" in calls[0] and "pytest>=8" in calls[0]
