@@ -11,7 +11,7 @@ EXTRAS := dev,realsense
 
 export MUJOCO_GL ?= egl
 
-.PHONY: setup system-packages demo test bench lint check-wheels clean
+.PHONY: setup system-packages demo test bench lint check-wheels check-aarch64 clean
 
 setup: system-packages $(STAMP)
 
@@ -51,6 +51,12 @@ lint: setup
 # Not part of `make test` (both talk to PyPI). The aarch64 wheel table for Python 3.10-3.13:
 check-wheels: setup
 	$(BIN)/python scripts/resolve_platform.py
+
+# arm64 Debian under qemu-user-static: make setup, info, perceive on a saved frame, fast tests.
+AARCH64_FRAME := build/aarch64-frame
+check-aarch64: setup
+	$(BIN)/armvision sim snapshot --seed 3 --pose sleep --out $(AARCH64_FRAME)
+	sh scripts/check-aarch64.sh $(AARCH64_FRAME)
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache
