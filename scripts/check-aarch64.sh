@@ -6,7 +6,8 @@
 # tree, then `armvision info`, `armvision perceive` on a saved frame and a fast subset of the
 # tests run inside it. The base system is kept in build/aarch64-bookworm.tar (made once, ~4 min);
 # the root filesystem build/aarch64-root is unpacked fresh from it on every run, so `make setup`
-# starts from a bare system each time. Needs root (chroot, mounts) and the network (Debian's
+# starts from a bare system each time (AARCH64_REUSE=1 keeps the last one: setup is then
+# instant, for rerunning the checks). Needs root (chroot, mounts) and the network (Debian's
 # mirror, PyPI). Usage: sh scripts/check-aarch64.sh FRAME_DIR (a `sim snapshot` folder).
 set -eu
 frame_dir="$1"
@@ -58,10 +59,14 @@ if grep -q " $here/$root/" /proc/mounts; then
     echo "check-aarch64: something is still mounted under $root; unmount it first" >&2
     exit 1
 fi
-rm -rf "$root"
-mkdir -p "$root"
-step "unpacking the root filesystem ($root)"
-tar -xf "$base" -C "$root"
+if [ "${AARCH64_REUSE:-0}" = 1 ] && [ -x "$root/usr/bin/python3" ]; then
+    step "reusing the root filesystem of the last run ($root, AARCH64_REUSE=1)"
+else
+    rm -rf "$root"
+    mkdir -p "$root"
+    step "unpacking the root filesystem ($root)"
+    tar -xf "$base" -C "$root"
+fi
 cp /etc/resolv.conf "$root/etc/resolv.conf"
 # pip inside trusts the host's CA bundle: a machine that reaches PyPI through a TLS proxy has
 # the proxy's CA there only (elsewhere it is the same public CAs as Debian's own bundle).
@@ -77,9 +82,11 @@ git ls-files -z --cached --others --exclude-standard | xargs -0 tar -cf - | tar 
 cp "$frame_dir/color.png" "$frame_dir/depth_mm.png" "$frame_dir/ground_truth.json" \
     "$root/root/armvision/frame/"
 
+# Mesa's llvmpipe crashes under qemu-user (its JIT: MuJoCo's EGL rendering ends in SIGSEGV);
+# softpipe, Mesa's renderer without a JIT, renders there.
 in_root() {
     chroot "$root" /usr/bin/env -i HOME=/root PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 \
-        MUJOCO_GL=egl PIP_CERT=/etc/ssl/host-ca-certificates.crt \
+        MUJOCO_GL=egl GALLIUM_DRIVER=softpipe PIP_CERT=/etc/ssl/host-ca-certificates.crt \
         SSL_CERT_FILE=/etc/ssl/host-ca-certificates.crt /bin/sh -c "cd /root/armvision && $1"
 }
 step "inside: $(in_root 'uname -m; python3 --version' | tr '\n' ' ')"
