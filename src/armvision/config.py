@@ -639,6 +639,28 @@ class UIConfig:
 
 
 @dataclass(config=_STRICT)
+class RecordConfig:
+    """Recording runs to MCAP (``--record PATH``, the UI's Record; armvision.runtime.recorder).
+
+    ``dir``: where the UI's Record button writes (``run-<date>-<time>.mcap``); ``queue``: items
+    (a frame, a joint reading, a state sample) waiting for the recorder thread: a realtime run
+    drops what does not fit (counted) rather than wait, a lockstep run waits; ``state_hz``:
+    tracks, transforms, markers, task, health and liquid samples a second; colour frames are
+    ``color_format`` (``jpeg`` of ``jpeg_quality``, or lossless ``png``); ``compression`` and
+    ``chunk_kib`` are the MCAP chunks' (a killed run keeps every complete chunk).
+    """
+
+    dir: Text = "recordings"
+    queue: Annotated[Int, Field(ge=1, le=100_000)] = 256
+    state_hz: Annotated[Float, Field(gt=0.0, le=100.0)] = 10.0
+    color_format: Literal["jpeg", "png"] = "jpeg"
+    # 95: a lockstep run replays to within 1 mm of its tracks (90 gives about 1.1 mm).
+    jpeg_quality: Annotated[Int, Field(ge=10, le=100)] = 95
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    chunk_kib: Annotated[Int, Field(ge=16, le=65536)] = 1024
+
+
+@dataclass(config=_STRICT)
 class Config:
     """The whole tree; every section has the paper's defaults."""
 
@@ -654,6 +676,7 @@ class Config:
     analyze: AnalyzeConfig = dataclasses.field(default_factory=AnalyzeConfig)
     perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
     ui: UIConfig = dataclasses.field(default_factory=UIConfig)
+    record: RecordConfig = dataclasses.field(default_factory=RecordConfig)
 
 
 _ADAPTER = TypeAdapter(Config)

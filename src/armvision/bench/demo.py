@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from armvision.config import Config
+from armvision.runtime.recorder import Recorder, RecordingError
 from armvision.runtime.state import CalibrationStatus
 
 #: Calibration passes within these of the simulator's camera pose. The simulated servos have
@@ -161,8 +162,11 @@ def run_demo(
     out_dir: str | Path = "out/demo",
     calibration_path: str | Path | None = None,
     say: Callable[[str], None] = lambda message: None,
+    record_to: str | Path | None = None,
 ) -> DemoReport:
-    """Run the demo (see the module docstring); the report says what passed."""
+    """Run the demo (see the module docstring); the report says what passed. ``record_to``:
+    record the run (after the calibration) to this MCAP file; if it cannot be written, ``say``
+    says so and the demo goes on."""
     from armvision.bench.snapshot import _write_png
     from armvision.bench.system import sim_system, sim_world
     from armvision.runtime.build import load_calibration
@@ -177,7 +181,16 @@ def run_demo(
     else:
         calibration = _calibrate(config, seed, scene.T_base_cam, report, say)
 
-    with sim_system(config, seed, scene=scene, calibration=calibration) as system:
+    system = sim_system(config, seed, scene=scene, calibration=calibration)
+    recorder = None
+    if record_to is not None:
+        try:
+            recorder = Recorder(record_to, config, wait=True, notify=say).open()
+            system.attach_recorder(recorder)
+            say(f"recording to {record_to}")
+        except RecordingError as exc:
+            say(f"{exc}; the demo goes on without recording")
+    with system:
         world = sim_world(system)
         truth = {o.spec.name: o for o in world.objects()}
         say(f"detecting for {DETECT_S:.0f} s")

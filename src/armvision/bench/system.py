@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,8 +17,11 @@ from numpy.typing import NDArray
 from armvision.calibration.procedure import CalibrationResult, calibrate, pose_errors
 from armvision.calibration.quality import check_quality
 from armvision.calibration.sampling import Progress
+from armvision.camera.base import Camera
 from armvision.config import Config, TagConfig
+from armvision.robot.base import Arm
 from armvision.runtime.build import result_status
+from armvision.runtime.recorder import Recorder, RecordingArm, RecordingCamera
 from armvision.runtime.state import CalibrationStatus
 from armvision.runtime.system import System
 from armvision.sim.arm import SimArm
@@ -35,12 +38,14 @@ def calibrate_sim(
     T_base_cam: Array | None = None,
     calibration_tag: TagConfig | None = None,
     progress: Progress | None = None,
+    recorder: Recorder | None = None,
 ) -> CalibrationResult:
     """Calibrate in a fresh lockstep simulation of ``seed`` and compare with the truth.
 
     ``T_base_cam`` places the simulated camera (default: the configured placement);
     ``calibration_tag`` is the tag the calibration is *told* about, when it should differ
     from the one the simulation mounts (``config.tag``), e.g. a mis-measured offset.
+    ``recorder``: every frame the procedure reads is recorded, with the encoders.
     """
     told = config if calibration_tag is None else dataclasses.replace(config, tag=calibration_tag)
     with SimWorld(config, seed) as world:
@@ -48,9 +53,14 @@ def calibrate_sim(
             world.set_camera_pose(T_base_cam)
         arm = SimArm(world)
         try:
-            with SimCamera(world) as camera:
+            with SimCamera(world) as sim_camera:
+                camera: Camera = sim_camera
+                moved: Arm = arm
+                if recorder is not None:
+                    camera = RecordingCamera(sim_camera, recorder)
+                    moved = cast(Arm, RecordingArm(arm, recorder))
                 result = calibrate(
-                    arm, camera, told, wait=world.advance, progress=progress, seed=seed
+                    moved, camera, told, wait=world.advance, progress=progress, seed=seed
                 )
         finally:
             arm.close()

@@ -11,8 +11,10 @@ import sys
 import time
 import typing
 from pathlib import Path
+from typing import Any
 
 from armvision.cli.args import ProgressBar, _sim_calibration_path, writable_dir
+from armvision.cli.record import finish_recording, open_recorder
 from armvision.config import (
     CalibrationConfig,
     Config,
@@ -78,22 +80,39 @@ def cmd_calibrate(args: argparse.Namespace, config: Config) -> int:
         out.parent if str(out.parent) else ".", "the calibration's folder"
     )  # before moving
     progress = ProgressBar("calibrating")
+    recorder = open_recorder(args.record, config, wait=not args.real)
+    if recorder is not None:
+        from armvision.robot.kinematics import VX300S
+
+        recorder.begin(0.0, tuple(VX300S.joint_names))
     if args.real:
         from armvision.camera.realsense import RealSenseCamera
         from armvision.robot.interbotix import InterbotixArm
 
         arm = InterbotixArm.from_config(config.robot)
-        with RealSenseCamera.from_config(config.camera) as camera:
+        with RealSenseCamera.from_config(config.camera) as rs_camera:
+            from armvision.runtime.recorder import RecordingArm, RecordingCamera
+
+            camera: Any = rs_camera
+            moved: Any = arm
+            if recorder is not None:
+                camera = RecordingCamera(rs_camera, recorder)
+                moved = RecordingArm(arm, recorder)
             arm.go_to_home_pose()
             try:
-                result = calibrate(arm, camera, config, wait=time.sleep, progress=progress)
+                result = calibrate(moved, camera, config, wait=time.sleep, progress=progress)
             finally:
                 arm.go_to_home_pose()
                 arm.go_to_sleep_pose()
             stored = store.record(result, source="real")
     else:
-        result = calibrate_sim(config, args.seed, progress=progress)
+        result = calibrate_sim(config, args.seed, progress=progress, recorder=recorder)
         stored = store.record(result, source=f"simulation, seed {args.seed}")
+    if recorder is not None:
+        from armvision.runtime.build import result_status
+
+        recorder.calibration(recorder.last_t, result_status(result))
+        finish_recording(recorder)
     quality = check_quality(
         result, config.calibration, "rerun, or pass --force to keep it", force=args.force
     )

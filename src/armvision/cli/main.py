@@ -21,6 +21,7 @@ from armvision.cli.evaluate import (
 )
 from armvision.cli.info import cmd_config, cmd_info
 from armvision.cli.perceive import cmd_perceive, cmd_sim_snapshot
+from armvision.cli.record import add_record_option, add_replay_parser
 from armvision.cli.tasks import add_parsers
 from armvision.config import (
     Config,
@@ -69,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     eval_sub = evaluate.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     _add_eval_parsers(eval_sub)
     add_parsers(sub, eval_sub)
+    add_replay_parser(sub)
     _add_profile_options(eval_sub)
     return parser
 
@@ -129,6 +131,14 @@ def _add_perception_parsers(sub: Any) -> None:
     source.add_argument(
         "--color", metavar="IMG", help="a saved colour image (PNG, JPG), with --depth"
     )
+    source.add_argument(
+        "--replay", metavar="FILE.mcap", help="a frame of a recording (--frame; default the last)"
+    )
+    perceive.add_argument(
+        "--frame",
+        type=int_in(0, 10**9, "a frame number"),
+        help="with --replay: which recorded frame, counted from 0",
+    )
     perceive.add_argument(
         "--depth",
         metavar="IMG",
@@ -165,6 +175,7 @@ def _add_perception_parsers(sub: Any) -> None:
         "--out", type=out_dir, default="perceive", metavar="DIR", help="output directory"
     )
     perceive.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    add_record_option(perceive)
     perceive.set_defaults(func=cmd_perceive)
 
 
@@ -191,6 +202,7 @@ def _add_calibrate_parser(sub: Any) -> None:
         action="store_true",
         help="keep a calibration that fails the plausibility check (residual, spread, tag mount)",
     )
+    add_record_option(calibrate)
     calibrate.set_defaults(func=cmd_calibrate)
 
 

@@ -205,13 +205,24 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
         if color is None and getattr(args, given, None) is not None:
             raise ArmvisionError(f"--{given} goes with --color (a saved frame)")
     calibration = getattr(args, "calibration", None)
-    if calibration is not None and color is None and not args.real:
+    replayed = getattr(args, "replay", None)
+    if getattr(args, "frame", None) is not None and replayed is None:
+        raise ArmvisionError("--frame goes with --replay (a recording's frame number)")
+    if calibration is not None and color is None and not args.real and replayed is None:
         raise ArmvisionError(
             "--calibration goes with --color or --real; in simulation the simulator's camera "
             "pose is used"
         )
     out = writable_dir(args.out)  # before the camera or the scene starts
-    if color is not None:
+    frame = None
+    if replayed is not None:
+        from armvision.cli.record import recorded_frame
+
+        frame, T_base_cam, joints, source = recorded_frame(replayed, args.frame)
+        if calibration is not None:
+            T_base_cam, _, _ = _calibration_pose(calibration)
+        result = {"source": source, **_perceive_frame(config, frame, T_base_cam, joints)}
+    elif color is not None:
         frame, T_base_cam, joints, source = _file_frame(args)
         result = {"source": source, **_perceive_frame(config, frame, T_base_cam, joints)}
     elif args.real:
@@ -257,6 +268,7 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
                     for o in world.objects()
                 ],
             }
+    _record_result(getattr(args, "record", None), config, frame, result)
     image = result.pop("image")
     _write_png(out / "annotated.png", image)
     result["image"] = str(out / "annotated.png")
@@ -268,6 +280,25 @@ def cmd_perceive(args: argparse.Namespace, config: Config) -> int:
     _print_result(result)
     print(f"wrote {out / 'annotated.png'} and {out / 'detections.json'}")
     return 0
+
+
+def _record_result(path: str | None, config: Config, frame, result: dict) -> None:
+    """``--record``: the frame, and its tags and detections as found, in an MCAP file."""
+    from armvision.cli.record import finish_recording, open_recorder
+
+    recorder = open_recorder(path, config, wait=True)
+    if recorder is None or frame is None:
+        finish_recording(recorder)
+        return
+    t = float(frame.timestamp)
+    recorder.begin(t)
+    recorder.frame(frame)
+    joints = result["source"].get("joint_positions")
+    if joints is not None:
+        recorder.frame_joints(t, joints)
+    recorder.json("/armvision/tags", t, result["tags"])
+    recorder.json("/armvision/detections", t, result["detections"])
+    finish_recording(recorder)
 
 
 def _print_result(result: dict) -> None:

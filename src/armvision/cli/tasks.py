@@ -24,6 +24,7 @@ from armvision.cli.args import (
     writable_dir,
 )
 from armvision.cli.evaluate import cmd_eval_follow, cmd_eval_grab
+from armvision.cli.record import add_record_option, finish_recording, record_system
 from armvision.config import Config
 
 if TYPE_CHECKING:
@@ -37,7 +38,9 @@ def cmd_demo(args: argparse.Namespace, config: Config) -> int:
     from armvision.bench.demo import run_demo
 
     writable_dir(args.out)  # before the calibration and the run, not after them
-    report = run_demo(config, args.seed, args.out, args.calibration, say=_say)
+    report = run_demo(
+        config, args.seed, args.out, args.calibration, say=_say, record_to=args.record
+    )
     if args.json:
         print(json.dumps(report.to_dict(), indent=2))
     else:
@@ -70,6 +73,7 @@ def _system(args: argparse.Namespace, config: Config):
 
 def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any) -> int:
     system = _system(args, config)
+    recorder = record_system(args.record, config, system)
     with system:
         if system.lockstep:
             system.pump(system.clock() + WARM_UP_S)
@@ -83,6 +87,7 @@ def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any)
             _say("stopped: the arm holds where it is")
             raise
         truth = _sim_truth(system) if not args.real else None
+    finish_recording(recorder)
     report = {"task": status.to_dict(), "truth": truth}
     if args.json:
         print(json.dumps(report, indent=2, default=float))
@@ -174,14 +179,17 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
     except BaseException:
         sock.close()
         raise
+    recorder = record_system(args.record, config, system)
     with system:
         ui = OperatorUI(system, config, "real" if args.real else "sim", token, saved_to)
+        ui.recording = recorder
         server = Server(ui, sock)
         _say(f"operator UI at {server.url()}  (Ctrl-C quits; the arm halts where it is)")
         try:
             server.run()  # until Ctrl-C (uvicorn then re-raises it: exit status 130)
         finally:
             _say("UI closing: stopping the threads")
+    finish_recording(ui.recording)  # the newest: from --record or the page's Record
     _say("UI closed")
     return 0
 
@@ -197,16 +205,19 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     )
     demo.add_argument("--calibration", metavar="PATH", help="load this instead of calibrating")
     demo.add_argument("--json", action="store_true", help="the report as JSON")
+    add_record_option(demo)
     demo.set_defaults(func=cmd_demo)
 
     grab = sub.add_parser("grab", help="grasp a bottle and lift it")
     _where(grab)
     grab.add_argument("--track", type=track_id, help="bottle track id (default: nearest reachable)")
+    add_record_option(grab)
     grab.set_defaults(func=cmd_grab)
 
     analyze = sub.add_parser("analyze", help="measure a bottle's liquid level")
     _where(analyze)
     analyze.add_argument("--track", type=track_id, help="bottle track id (default: nearest)")
+    add_record_option(analyze)
     analyze.set_defaults(func=cmd_analyze)
 
     follow = sub.add_parser("follow", help="follow a tag or a bottle with the gripper")
@@ -216,6 +227,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     follow.add_argument("--track", type=track_id, help="bottle track id (default: nearest)")
     follow.add_argument("--duration", type=seconds, help="seconds (default follow.duration_s)")
     follow.add_argument("--mode", choices=("servo", "blocking"), default="servo")
+    add_record_option(follow)
     follow.set_defaults(func=cmd_follow)
 
     ui = sub.add_parser("ui", help="the operator web UI: live video, state, every task")
@@ -232,6 +244,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
         "that is printed (or ui.token / $ARMVISION_UI_TOKEN)",
     )
     ui.add_argument("--port", type=port, help="port 0-65535 (default ui.port, 8000)")
+    add_record_option(ui)
     ui.set_defaults(func=cmd_ui)
 
     grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")

@@ -63,6 +63,7 @@ from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.context import Task
 from armvision.runtime.jobs import Jobs
 from armvision.runtime.lockstep import DETECTORS, Lockstep, SimulatedWorld, require_world
+from armvision.runtime.recorder import Recorder
 from armvision.runtime.state import (
     CalibrationStatus,
     HealthMeter,
@@ -98,6 +99,11 @@ class _CorrectedEncoders:
     def get_joint_positions(self) -> Array:
         q = np.asarray(self.arm.get_joint_positions(), dtype=float)
         return q if self.offsets is None else q - self.offsets
+
+    def raw(self, q: Any) -> Array:
+        """The encoder reading a corrected one came from (the offsets added back)."""
+        q = np.array(q, dtype=float)
+        return q if self.offsets is None else q + self.offsets
 
 
 class System:
@@ -159,6 +165,7 @@ class System:
         self.fusion_stalls = 0  # times the fusion stage fell more than a cycle behind
         self.stuck: tuple[str, ...] = ()  # threads that did not end at close()
         self.stopping = threading.Event()  # set by close(): every stage ends
+        self.recorder: Recorder | None = None  # attach_recorder(): the run is being recorded
         self._started = False
         self._closed = False
 
@@ -202,6 +209,7 @@ class System:
         self.stuck = self._threads.join(timeout)
         if self.lockstep:
             self.camera.stop()
+        self.detach_recorder()
         if not self.stuck:
             self._release()
             return
@@ -230,6 +238,29 @@ class System:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # ---------------------------------------------------------------- recording
+
+    def attach_recorder(self, recorder: Recorder) -> None:
+        """Record the run from now on to ``recorder`` (opened; see
+        :mod:`armvision.runtime.recorder`): the configuration, calibration and detectors now,
+        then what every stage produces. One recorder at a time: a previous one is stopped."""
+        self.detach_recorder()
+        recorder.start_of_run(self.clock(), self)
+        self.recorder = recorder
+
+    def detach_recorder(self) -> Recorder | None:
+        """Stop recording (the file is finished); the recorder that was attached, if any."""
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            recorder.stop()
+        return recorder
+
+    def publish_frame(self, frame: RGBDFrame) -> None:
+        """A camera frame for the stages (and the recording)."""
+        self.store.set_frame(frame)
+        if (recorder := self.recorder) is not None:
+            recorder.frame(frame)
 
     # ---------------------------------------------------------------- state
 
@@ -299,12 +330,16 @@ class System:
         self.fusion = self._fusion_loop()  # the fusion stage picks it up at its next cycle
         self._levels.clear()
         self.store.keep_liquid(set())
+        if (recorder := self.recorder) is not None:
+            recorder.calibration(self.clock(), calibration)
 
     def set_detector(self, name: str, enabled: bool) -> None:
         """Switch the tag, object or liquid stage on or off."""
         if name not in DETECTORS:
             raise ArmvisionError(f"no detector {name!r}; the detectors are {', '.join(DETECTORS)}")
         self.enabled[name] = bool(enabled)
+        if (recorder := self.recorder) is not None:
+            recorder.detectors(self.clock(), self.enabled)
         if name == "tags" and not enabled:
             self.store.set(tags=())
         if name == "objects" and not enabled:
@@ -314,7 +349,9 @@ class System:
 
     def fusion_step(self) -> None:
         """One fusion cycle (the fusion stage's unit of work)."""
-        self.fusion.step()
+        snapshot = self.fusion.step()
+        if (recorder := self.recorder) is not None:
+            recorder.fusion(self, snapshot)
 
     def tags_once(self, frame: RGBDFrame) -> None:
         """The tag stage on one frame: every tag published, the gripper tag's pose fused."""
@@ -324,6 +361,8 @@ class System:
             if tag.id == self.config.tag.id:
                 self.fusion.push_tag(frame.timestamp, tag.T_cam_tag)
         self.store.set(tags=tuple(tags), tags_time=frame.timestamp)
+        if (recorder := self.recorder) is not None:
+            recorder.tags(frame.timestamp, tuple(tags))
         _reject_non_finite("tag detector", "tag", len(found) - len(tags))
 
     def objects_once(self, frame: RGBDFrame) -> None:
@@ -331,10 +370,14 @@ class System:
         context = FrameContext(
             T_base_cam=self.T_base_cam, joint_positions=self.encoders.get_joint_positions()
         )
+        if (recorder := self.recorder) is not None:  # the reading the detector is given
+            recorder.frame_joints(frame.timestamp, self.encoders.raw(context.joint_positions))
         found = self.object_detector.detect(frame, context)
         detections = [d for d in found if _finite(d.center_cam, d.box, d.radius, d.height, d.score)]
         self.fusion.push_detections(frame.timestamp, detections)
         self.store.set(detections=tuple(detections), detections_frame=frame)
+        if (recorder := self.recorder) is not None:
+            recorder.detections(frame.timestamp, tuple(detections))
         _reject_non_finite("object detector", "detection", len(found) - len(detections))
 
     def liquid_once(self) -> bool:
@@ -386,7 +429,7 @@ class System:
     def read_frame(self) -> RGBDFrame:
         """Lockstep: the next camera frame (advancing the clock to it), published."""
         frame = self.camera.read()
-        self.store.set_frame(frame)
+        self.publish_frame(frame)
         self.meters["camera"].tick()
         return frame
 

@@ -76,7 +76,7 @@ class StageThreads:
             return
 
         def once() -> None:
-            system.store.set_frame(system.camera.read(timeout_s=2.0))
+            system.publish_frame(system.camera.read(timeout_s=2.0))
             ready.set()
 
         try:

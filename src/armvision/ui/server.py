@@ -14,6 +14,10 @@ One page (``static/``: plain HTML, JS and CSS, no build step) talks to these end
   where it is, the task ends.
 - ``POST /api/detectors/{name}`` ``{"enabled": bool}`` (JSON): switch tag, object or liquid
   detection.
+- ``POST /api/recording/start`` and ``POST /api/recording/stop`` (JSON body ``{}``): record
+  the run to a new MCAP file in ``record.dir`` (the server names it; a client never gives a
+  path), and stop. 409 when already (or not) recording; a file that cannot be made is a 400
+  that says why. The state's ``recording`` says where, how much, and why it stopped.
 
 Every error is JSON ``{"error": "what went wrong and what to do"}`` of one line, never a
 traceback (that goes to the server's log, and only for a bug): 400 a bad body (strict: numbers
@@ -70,6 +74,7 @@ from starlette.requests import ClientDisconnect
 from armvision.config import Config
 from armvision.errors import ArmvisionError
 from armvision.geometry import pose_error
+from armvision.runtime.recorder import Recorder
 from armvision.runtime.state import SystemState
 from armvision.runtime.system import DETECTORS, System
 from armvision.runtime.view import annotated, depth_image
@@ -489,6 +494,23 @@ def _action_params(name: str, action: Action, body: Any) -> ActionBody:
     return params
 
 
+def _no_parameters(name: str, body: Any) -> None:
+    """RequestError 400 unless ``body`` is an empty JSON object."""
+    if body != {} or not isinstance(body, dict):
+        raise RequestError(400, f"{name} takes no parameters: send {{}}, not {_short(body)}")
+
+
+def _new_recording_path(folder: Path) -> Path:
+    """``run-<date>-<time>.mcap`` in ``folder``, numbered if that name is taken."""
+    stem = time.strftime("run-%Y%m%d-%H%M%S")
+    path = folder / f"{stem}.mcap"
+    n = 1
+    while path.exists():
+        n += 1
+        path = folder / f"{stem}-{n}.mcap"
+    return path
+
+
 def _detector_body(name: str, body: Any) -> DetectorBody:
     """The switch of detector ``name`` from a request body (RequestError 400 if wrong)."""
     what = f'{name}: send {{"enabled": true}} or {{"enabled": false}}'
@@ -529,8 +551,11 @@ def _r(values: Any, n: int) -> list[float]:
     return [round(float(v), n) for v in values]
 
 
-def state_payload(state: SystemState, system: System, mode: Mode) -> dict[str, Any]:
-    """Everything the page shows, as a JSON-able dict (the contract with static/app.js)."""
+def state_payload(
+    state: SystemState, system: System, mode: Mode, recording: Recorder | None = None
+) -> dict[str, Any]:
+    """Everything the page shows, as a JSON-able dict (the contract with static/app.js);
+    ``recording``: the UI's newest recorder."""
     model = getattr(system.arm, "model", None)
     fusion = state.fusion
     q = fusion.joint_positions
@@ -597,6 +622,7 @@ def state_payload(state: SystemState, system: System, mode: Mode) -> dict[str, A
             "task": state.task.to_dict(),
             "busy": state.task.active,
             "actions": action_states(state),
+            "recording": None if recording is None else recording.status(),
         }
     )
 
@@ -669,6 +695,8 @@ class OperatorUI:
         self._allowed_hosts = frozenset(
             h.strip().lower().strip("[]").rstrip(".") for h in self.settings.allowed_hosts
         )
+        self.recording: Recorder | None = None  # the newest recorder (stopped or not)
+        self._recording_lock = threading.Lock()
         self.bind(self.settings.host)  # until a Server says where it listens
         self.app = self._build()
 
@@ -683,7 +711,9 @@ class OperatorUI:
             made, text = self._payload
             if text and not fresh and now - made < 0.5 * period:
                 return text
-        text = json.dumps(state_payload(self.system.snapshot(), self.system, self.mode))
+        text = json.dumps(
+            state_payload(self.system.snapshot(), self.system, self.mode, self.recording)
+        )
         with self._payload_lock:
             self._payload = (now, text)
         return text
@@ -735,6 +765,48 @@ class OperatorUI:
             task_id = self.system.submit(name, fn, **kwargs)
         self.changed()
         return task_id
+
+    def start_recording(self, body: Any) -> dict[str, Any]:
+        """Record the run to a new file in ``record.dir`` (RequestError 400 for a body with
+        parameters or a file that cannot be made, 409 if recording already)."""
+        from armvision.runtime.recorder import Recorder, RecordingError
+
+        _no_parameters("recording/start", body)
+        with self._recording_lock:
+            if self.recording is not None and self.recording.active:
+                raise RequestError(
+                    409, f"already recording to {self.recording.path}: stop that recording first"
+                )
+            folder = Path(self.config.record.dir)
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise RequestError(
+                    400,
+                    f"cannot record into {folder} ({exc.strerror or exc}): set record.dir to a "
+                    "folder you can write to",
+                ) from None
+            path = _new_recording_path(folder)
+            try:
+                recorder = Recorder(path, self.config, wait=False).open()
+            except RecordingError as exc:
+                raise RequestError(400, str(exc)) from None
+            self.system.attach_recorder(recorder)
+            self.recording = recorder
+        self.changed()
+        return {"recording": recorder.status()}
+
+    def stop_recording(self, body: Any) -> dict[str, Any]:
+        """Stop recording and finish the file (RequestError 409 if not recording)."""
+        _no_parameters("recording/stop", body)
+        with self._recording_lock:
+            recorder = self.recording
+            if recorder is None or not recorder.active:
+                raise RequestError(409, "not recording: press Record first")
+            self.system.detach_recorder()
+            recorder.stop()
+        self.changed()
+        return {"recording": recorder.status()}
 
     def _check_ids(self, state: SystemState, params: ActionBody) -> None:
         """RequestError 400 for a track id that is no tracked bottle, or the gripper's own tag
@@ -972,6 +1044,16 @@ class OperatorUI:
             ui.system.set_detector(name, body.enabled)
             ui.changed()
             return {"detectors": dict(ui.system.enabled)}
+
+        @app.post("/api/recording/{what}")
+        async def recording(what: str, request: Request) -> dict[str, Any]:
+            if what not in ("start", "stop"):
+                raise RequestError(
+                    404, f"no recording control {_short(what)}; they are start and stop"
+                )
+            body = await read_json(request)
+            work = ui.start_recording if what == "start" else ui.stop_recording
+            return await run_in_threadpool(work, body)
 
 
 # --------------------------------------------------------------------------- serving

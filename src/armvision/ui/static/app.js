@@ -190,6 +190,48 @@ function renderButtons() {
   }
 }
 
+// ---------------------------------------------------------------- recording
+
+let recordPosting = false;       // the Record / Stop recording POST is in flight
+let recordShown = null;          // the state's recording, as last rendered
+let recordErrorShown = null;     // a recording error already put in the banner
+
+/** Record, or Stop recording: the server names the file (in record.dir). */
+async function toggleRecording() {
+  const active = !!(recordShown && recordShown.active);
+  recordPosting = true;
+  renderRecording(recordShown);
+  try {
+    const data = await api('POST', active ? '/api/recording/stop' : '/api/recording/start', {});
+    if (data && data.recording) recordShown = data.recording;
+  } catch (err) {
+    showError(err.message);
+  } finally {
+    recordPosting = false;
+    renderRecording(recordShown);
+  }
+}
+
+function renderRecording(rec) {
+  recordShown = rec || null;
+  const active = !!(rec && rec.active);
+  const btn = $('btn-record');
+  setText(btn, active ? 'Stop recording' : 'Record');
+  btn.classList.toggle('recording', active);
+  btn.disabled = !live || recordPosting;
+  let text = '';
+  if (rec) {
+    const mb = isNum(rec.bytes) ? ` ${(rec.bytes / 1e6).toFixed(1)} MB` : '';
+    const dropped = isNum(rec.dropped) && rec.dropped > 0 ? `, ${rec.dropped} dropped` : '';
+    text = (active ? 'recording ' : 'recorded ') + String(rec.path) + mb + dropped;
+    if (rec.error && rec.error !== recordErrorShown) {
+      recordErrorShown = rec.error;
+      showError(rec.error);
+    }
+  }
+  setText($('record-status'), text);
+}
+
 // ---------------------------------------------------------------- detectors
 
 const DETECTORS = ['tags', 'objects', 'liquid'];
@@ -452,6 +494,7 @@ function render(state) {
   renderTracks(tracks);
   renderBottleSelect(tracks);
   renderTags(state.tags || []);
+  if (!recordPosting) renderRecording(state.recording);
 }
 
 // ---------------------------------------------------------------- WebSocket, with reconnect
@@ -468,6 +511,7 @@ function setLive(on) {
   document.body.classList.toggle('offline', !on);
   for (const name of DETECTORS) $('det-' + name).disabled = !on;
   renderButtons();
+  renderRecording(recordShown);
 }
 
 function connect() {
@@ -547,6 +591,7 @@ function init() {
     if (ev.key === 'Escape' && !ev.repeat) stopAll();
   });
   $('error-close').addEventListener('click', clearError);
+  $('btn-record').addEventListener('click', toggleRecording);
   for (const name of DETECTORS) {
     const box = $('det-' + name);
     box.addEventListener('change', () => toggleDetector(name, box));
