@@ -52,7 +52,9 @@ class Recording:
         wanted = None if topics is None else set(topics)
         with open(self.path, "rb") as f:
             reader = NonSeekingReader(f, validate_crcs=True)
-            it = reader.iter_messages(topics=None if wanted is None else list(wanted))
+            it = reader.iter_messages(
+                topics=None if wanted is None else list(wanted), log_time_order=False
+            )
             while True:
                 try:
                     schema, channel, message = next(it)

@@ -1,0 +1,206 @@
+"""Recording a lockstep simulated run, read back with the independent readers, and replayed.
+
+Ground truth: the simulator's camera pose, end effector and objects; the ``mcap`` library's
+reader and mcap-ros2-support's decoder (which parse the file and the schemas written into it,
+not armvision's code); the run's own last depth frame and fusion cycle count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from tests.recording.helpers import (
+    ROS_TYPES,
+    Recorded,
+    read_independently,
+    record_lockstep,
+    with_record,
+)
+
+from armvision.cli.main import main
+from armvision.config import Config
+from armvision.robot.kinematics import VX300S
+from armvision.runtime.recorder import plain
+
+CAMERA_FRAME = "camera_color_optical_frame"
+
+
+@pytest.fixture(scope="module")
+def still(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
+    """2 s of the default scene, the arm at home: JPEG colour (the default)."""
+    return record_lockstep(tmp_path_factory.mktemp("recording") / "still.mcap", 2.0)
+
+
+@pytest.fixture(scope="module")
+def topics(still: Recorded) -> dict:
+    return read_independently(still.path)
+
+
+def _matrix(transform) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    r, p = transform.rotation, transform.translation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    T[:3, 3] = [p.x, p.y, p.z]
+    return T
+
+
+def test_every_ros_message_decodes_with_its_standard_schema(topics: dict) -> None:
+    for topic, msgtype in ROS_TYPES.items():
+        assert topics[topic], f"nothing on {topic}"
+        for schema, channel, _, decoded in topics[topic]:
+            assert (schema.name, schema.encoding, channel.message_encoding) == (
+                msgtype,
+                "ros2msg",
+                "cdr",
+            )
+            assert type(decoded).__name__ == msgtype.rsplit("/", 1)[-1]
+
+
+def test_timestamps_are_monotonic_and_headers_match_log_times(topics: dict) -> None:
+    for topic, messages in topics.items():
+        times = [m.log_time for _, _, m, _ in messages]
+        assert times == sorted(times), topic
+        for _, _, message, decoded in messages:
+            header = getattr(decoded, "header", None)
+            if header is not None:
+                assert header.stamp.sec * 10**9 + header.stamp.nanosec == message.log_time
+    # Frames come at the tag stage's 30 Hz, fusion cycles at 100 Hz: simulated seconds.
+    frames = [m.log_time for _, _, m, _ in topics["/camera/aligned_depth_to_color/image_raw"]]
+    assert np.median(np.diff(frames)) == pytest.approx(1e9 / 30, rel=0.1)
+
+
+def test_images_and_camera_info_are_the_drivers_messages(still: Recorded, topics: dict) -> None:
+    for topic in (
+        "/camera/color/image_raw/compressed",
+        "/camera/aligned_depth_to_color/image_raw",
+        "/camera/color/camera_info",
+    ):
+        assert {d.header.frame_id for *_, d in topics[topic]} == {CAMERA_FRAME}
+    depth = topics["/camera/aligned_depth_to_color/image_raw"][-1][3]
+    assert (depth.encoding, depth.height, depth.width, depth.step) == ("16UC1", 480, 640, 1280)
+    mm = np.frombuffer(bytes(depth.data), dtype="<u2").reshape(480, 640)
+    # The run's own last frame, in millimetres (the simulated D435 rounds to 1 mm units).
+    assert np.abs(mm * 0.001 - still.last_depth).max() < 0.0005 + 1e-6
+    assert np.count_nonzero(mm) == np.count_nonzero(still.last_depth)
+    colour = topics["/camera/color/image_raw/compressed"][-1][3]
+    assert "jpeg" in colour.format
+    image = cv2.imdecode(np.frombuffer(bytes(colour.data), np.uint8), cv2.IMREAD_COLOR)
+    assert image.shape == (480, 640, 3)
+    info = topics["/camera/color/camera_info"][-1][3]
+    k, p = np.asarray(info.k).reshape(3, 3), np.asarray(info.p).reshape(3, 4)
+    assert (info.width, info.height, info.distortion_model, len(info.d)) == (
+        640,
+        480,
+        "plumb_bob",
+        5,
+    )
+    assert np.allclose(p[:, :3], k) and k[2, 2] == 1.0 and k[0, 0] > 0
+
+
+def test_transforms_are_where_the_simulator_has_things(still: Recorded, topics: dict) -> None:
+    (static,) = [d for *_, d in topics["/tf_static"]]
+    (camera,) = static.transforms
+    assert (camera.header.frame_id, camera.child_frame_id) == ("vx300s/base_link", CAMERA_FRAME)
+    assert np.allclose(_matrix(camera.transform), still.truth["T_base_cam"], atol=1e-9)
+    last = {t.child_frame_id: t for t in topics["/tf"][-1][3].transforms}
+    assert {t.header.frame_id for t in last.values()} == {"vx300s/base_link"}
+    ee = _matrix(last["vx300s/ee_gripper_link"].transform)
+    assert np.linalg.norm(ee[:3, 3] - still.truth["T_base_ee"][:3, 3]) < 0.005
+    # Each true object has a track frame at its centre (half-way up), within 2 cm.
+    centres = [
+        p + np.array([0, 0, h / 2]) for p, h in zip(still.truth["objects"], still.truth["heights"])
+    ]
+    tracks = [t for name, t in last.items() if name.startswith("armvision/track_")]
+    assert len(tracks) == len(centres)
+    for centre in centres:
+        d = min(np.linalg.norm(_matrix(t.transform)[:3, 3] - centre) for t in tracks)
+        assert d < 0.02
+
+
+def test_joint_states_and_markers(still: Recorded, topics: dict) -> None:
+    joints = topics["/vx300s/joint_states"]
+    assert len(joints) == still.cycles  # every fusion cycle's encoder reading
+    assert {tuple(d.name) for *_, d in joints} == {VX300S.joint_names}
+    markers = topics["/armvision/markers"][-1][3].markers
+    assert markers[0].action == 3  # DELETEALL: tracks that ended disappear
+    cylinders = [m for m in markers[1:] if m.ns == "tracks"]
+    texts = [m.text for m in markers if m.type == 9]
+    tracks = topics["/armvision/tracks"][-1][3]["tracks"]
+    assert len(cylinders) == len(tracks) == len(texts)
+    for track, cylinder in zip(tracks, cylinders):
+        assert cylinder.type == 3 and cylinder.header.frame_id == "vx300s/base_link"
+        assert cylinder.scale.x == pytest.approx(2 * track["radius_m"])
+        assert cylinder.scale.z == pytest.approx(track["height_m"])
+    assert any(t.startswith("bottle #") and t.endswith("%") for t in texts)  # with the fill
+    assert any(m.ns == "liquid" for m in markers)
+
+
+def test_json_channels(still: Recorded, topics: dict) -> None:
+    ((*_, config),) = topics["/armvision/config"]
+    assert config == json.loads(json.dumps(plain(dataclasses.asdict(still.config))))
+    calibration = topics["/armvision/calibration"][0][3]
+    assert np.allclose(calibration["T_base_cam"], still.truth["T_base_cam"])
+    health = topics["/armvision/health"][-1][3]
+    assert set(health["threads"]) == {"camera", "tags", "objects", "liquid", "fusion", "motion"}
+    assert health["recorder"]["dropped"] == 0
+    assert topics["/armvision/task"][-1][3]["phase"] == "idle"
+    assert topics["/armvision/liquid"] and topics["/armvision/detections"]
+
+
+def test_replay_of_a_jpeg_recording_keeps_the_tracks_within_a_millimetre(
+    still: Recorded, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["replay", str(still.path), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["same_tracks"] and report["samples"] >= 15
+    assert {t["id"] for t in report["tracks"]} == {t.id for t in still.tracks}
+    assert report["max_diff_mm"] < 1.0
+    assert report["detections_replayed"] == report["detections_recorded"] > 0
+
+
+def test_a_lossless_recording_replays_exactly_while_the_arm_moves(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from armvision.tasks.basic import home
+
+    config = with_record(Config(), color_format="png")
+    recorded = record_lockstep(tmp_path / "moving.mcap", 1.0, task=home, config=config)
+    out = tmp_path / "replayed.mcap"
+    assert main(["replay", str(recorded.path), "--json", "--record", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["same_tracks"] and report["samples"] >= 20
+    assert {t["id"] for t in report["tracks"]} == {t.id for t in recorded.tracks}
+    assert report["max_diff_mm"] < 1e-6  # the same numbers: a replay is deterministic
+    joints = [d.position for *_, d in read_independently(recorded.path)["/vx300s/joint_states"]]
+    assert np.ptp(np.asarray(joints), axis=0).max() > 0.5  # the arm went home meanwhile
+    replayed = read_independently(out)
+    assert len(replayed["/camera/color/image_raw/compressed"]) == report["frames"]
+
+
+def test_perceive_replays_one_recorded_frame(
+    still: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["perceive", "--replay", str(still.path), "--frame", "30", "--json"]
+    assert main([*args, "--out", str(tmp_path)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["source"]["kind"] == "replay" and result["source"]["frame"] == 30
+    T_base_cam = still.truth["T_base_cam"]
+    centres = [
+        p + np.array([0, 0, h / 2]) for p, h in zip(still.truth["objects"], still.truth["heights"])
+    ]
+    found = [
+        T_base_cam[:3, :3] @ np.asarray(d["center_cam"]) + T_base_cam[:3, 3]
+        for d in result["detections"]
+    ]
+    for centre in centres:
+        assert min(np.linalg.norm(f - centre) for f in found) < 0.02
+    args = ["perceive", "--replay", str(still.path), "--frame", "100000"]
+    assert main([*args, "--out", str(tmp_path)]) == 2
+    assert "no frame 100000" in capsys.readouterr().err
