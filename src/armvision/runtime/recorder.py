@@ -287,10 +287,18 @@ class Recorder:
         and a state sample when one is due."""
         t = float(snapshot.time)
         if snapshot.joint_positions is not None:
-            self._put(("joints", t, system.encoders.raw(snapshot.joint_positions)))
+            self.joints(t, system.encoders.raw(snapshot.joint_positions))
         if t >= self._next_state:
             self._next_state = max(self._next_state + 1.0 / self.settings.state_hz, t)
-            self._put(("state", system.snapshot(), system.fusion_stalls))
+            self.state_sample(system.snapshot(), system.fusion_stalls)
+
+    def joints(self, t: float, q_raw: Any) -> None:
+        """A fusion cycle's encoder reading (raw) at ``t``."""
+        self._put(("joints", t, np.array(q_raw, dtype=float)))
+
+    def state_sample(self, state: SystemState, fusion_stalls: int = 0) -> None:
+        """A state sample: transforms, markers, tracks, task, health and liquid levels."""
+        self._put(("state", state, fusion_stalls))
 
     def detections(self, t: float, detections: tuple[Detection, ...]) -> None:
         self._put(("json", "/armvision/detections", t, [d.to_dict() for d in detections]))
