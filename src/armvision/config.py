@@ -614,7 +614,8 @@ class UIConfig:
     variable ``ARMVISION_UI_TOKEN`` overrides this key, which keeps it out of files). The
     state is pushed ``state_hz`` times a second, video at most ``video_fps`` frames a second as
     JPEG of ``jpeg_quality``; the depth view maps ``depth_min_m``..``depth_max_m`` onto its
-    colours. ``follow_duration_s`` is the follow buttons' default length.
+    colours. ``follow_duration_s`` is the follow buttons' default length. ``foxglove``: serve
+    the recording's channels live to Foxglove on ``foxglove_host``:``foxglove_port``.
     """
 
     host: Text = "127.0.0.1"
@@ -631,6 +632,11 @@ class UIConfig:
     # validate_default: checked against depth_min_m when only that is set.
     depth_max_m: Annotated[Float, Field(gt=0.0, le=65.0, validate_default=True)] = 2.0
     follow_duration_s: Annotated[Float, Field(gt=0.0, le=86400.0)] = 60.0
+    # The recording's channels live to Foxglove (the Foxglove SDK's WebSocket server, which
+    # has no access token: it listens on foxglove_host, the loopback unless you change it).
+    foxglove: Bool = False
+    foxglove_host: Text = "127.0.0.1"
+    foxglove_port: Annotated[Int, Field(ge=0, le=65535)] = 8765
 
     @field_validator("depth_max_m")
     @classmethod

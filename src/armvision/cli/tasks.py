@@ -179,7 +179,12 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
     except BaseException:
         sock.close()
         raise
-    recorder = record_system(args.record, config, system)
+    try:
+        recorder = _ui_recorder(args.record, config, system)
+    except BaseException:
+        sock.close()
+        system.close()
+        raise
     with system:
         ui = OperatorUI(system, config, "real" if args.real else "sim", token, saved_to)
         ui.recording = recorder
@@ -192,6 +197,25 @@ def cmd_ui(args: argparse.Namespace, config: Config) -> int:
     finish_recording(ui.recording)  # the newest: from --record or the page's Record
     _say("UI closed")
     return 0
+
+
+def _ui_recorder(path: str | None, config: Config, system: System):
+    """The UI's recorder: to ``--record``'s file, and live to Foxglove with ``ui.foxglove``
+    (then it runs all along, and Record / Stop recording start and finish its files)."""
+    if not config.ui.foxglove:
+        return record_system(path, config, system)
+    from armvision.recording.live import LiveServer
+    from armvision.runtime.recorder import Recorder, RecordingError
+
+    live = LiveServer(config.ui.foxglove_host, config.ui.foxglove_port)
+    _say(f"Foxglove live view at {live.url()} (Foxglove: Open connection, Foxglove WebSocket)")
+    try:
+        recorder = Recorder(path, config, wait=False, notify=_say, live=live).open()
+    except RecordingError as exc:
+        _say(f"{exc}; the run goes on without recording")
+        recorder = Recorder(None, config, wait=False, notify=_say, live=live).open()
+    system.attach_recorder(recorder)
+    return recorder
 
 
 def add_parsers(sub: Any, eval_sub: Any) -> None:

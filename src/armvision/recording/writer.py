@@ -31,6 +31,20 @@ def _why(exc: OSError) -> str:
     return exc.strerror or str(exc) or type(exc).__name__
 
 
+def encode(topic: str, message: Any) -> bytes:
+    """A message's bytes on ``topic``: CDR for a ROS 2 type, compact JSON for armvision's."""
+    msgtype = ros.TOPICS[topic]
+    if msgtype == "json":
+        return json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
+    return ros.serialize(message, msgtype)
+
+
+def json_schema_name(topic: str) -> str:
+    """The schema name of one of armvision's JSON topics (``/armvision/task`` ->
+    ``armvision.task``)."""
+    return topic.strip("/").replace("/", ".")
+
+
 class McapLog:
     """An MCAP file being written at ``path`` (``compression``: zstd, lz4 or none;
     ``chunk_size`` in bytes). :meth:`close` writes the summary that makes it seekable."""
@@ -87,7 +101,7 @@ class McapLog:
         if schema is None:
             if msgtype == "json":
                 schema = self._writer.register_schema(
-                    f"armvision{topic.replace('/', '.')}", "jsonschema",
+                    json_schema_name(topic), "jsonschema",
                     json.dumps({"type": "object"}).encode(),
                 )  # fmt: skip
             else:
@@ -103,13 +117,13 @@ class McapLog:
     def write(self, topic: str, t: float, message: Any) -> None:
         """Write ``message`` on ``topic`` (a key of :data:`~armvision.recording.ros.TOPICS`) at
         clock seconds ``t``: a ROS message object, or a JSON-able dict for a JSON topic."""
+        self.write_encoded(topic, t, encode(topic, message))
+
+    def write_encoded(self, topic: str, t: float, data: bytes) -> None:
+        """Write a message :func:`encode` made."""
         if self.closed:
             raise RecordingError(f"the recording {self.path} is closed")
         msgtype = ros.TOPICS[topic]
-        if msgtype == "json":
-            data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
-        else:
-            data = ros.serialize(message, msgtype)
         ns = max(ros.to_ns(t), 0)
         seq = self._sequence.get(topic, 0)
         self._sequence[topic] = seq + 1

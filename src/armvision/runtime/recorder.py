@@ -39,17 +39,30 @@ from armvision.camera.frames import RGBDFrame
 from armvision.config import Config
 from armvision.perception.detection import Detection
 from armvision.perception.tags import TagDetection
-from armvision.recording.writer import McapLog, RecordingError
+from armvision.recording.writer import McapLog, RecordingError, encode
 from armvision.runtime.state import CalibrationStatus, SystemState
 
 if TYPE_CHECKING:
     from armvision.fusion.loop import FusionSnapshot
+    from armvision.recording.live import LiveServer
 
 log = logging.getLogger("armvision.recorder")
 
 __all__ = ["Recorder", "RecordingError", "calibration_record", "plain"]
 
 _STOP = object()
+
+#: Topics whose newest message a file started mid-run begins with (and a live viewer that
+#: connects late is sent again): what they say holds until the next one.
+LATCHED = (
+    "/armvision/config",
+    "/armvision/camera",
+    "/armvision/calibration",
+    "/tf_static",
+    "/armvision/detectors",
+)
+#: A live viewer gets the latched topics again every this many state samples.
+LIVE_REPEAT = 10
 
 
 def plain(value: Any) -> Any:
@@ -150,6 +163,13 @@ class RecordingCamera:
         self.stop()
 
 
+class _Emitter:
+    """``write(topic, t, message)`` to the recorder's live view and file."""
+
+    def __init__(self, recorder: Recorder) -> None:
+        self.write = recorder._emit
+
+
 class RecordingArm:
     """An arm whose every encoder reading is also recorded (``/armvision/frame_joint_states``,
     stamped with the newest frame's time); everything else is the arm's own."""
@@ -168,7 +188,8 @@ class RecordingArm:
 
 
 class Recorder:
-    """Records one system's run to ``path`` (see the module docstring).
+    """Records one system's run to ``path`` (see the module docstring), and publishes it to
+    ``live`` (a Foxglove server) if given; ``path`` None: live only, until :meth:`start_file`.
 
     ``wait``: block a producer while the queue is full (lockstep) instead of dropping.
     ``notify``: called once with the one-line message when recording stops on an error.
@@ -179,13 +200,17 @@ class Recorder:
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | Path | None,
         config: Config,
         *,
         wait: bool = False,
         notify: Callable[[str], None] | None = None,
+        live: LiveServer | None = None,
     ) -> None:
-        self.path = Path(path)
+        self.path = None if path is None else Path(path)
+        self.live = live
+        self._latched: dict[str, tuple[float, bytes]] = {}
+        self._live_error: str | None = None
         self.config = config
         self.settings = config.record
         self.wait = wait
@@ -208,15 +233,50 @@ class Recorder:
     def open(self) -> Recorder:
         """Create the file (RecordingError saying what to do if it cannot be) and start the
         thread."""
-        self._log = McapLog(self.path, self.settings.compression, self.settings.chunk_kib * 1024)
+        if self.path is not None:
+            self._log = self._new_log(self.path)
         self.started_wall = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="armvision-recorder", daemon=True)
         self._thread.start()
         return self
 
+    def _new_log(self, path: Path) -> McapLog:
+        return McapLog(path, self.settings.compression, self.settings.chunk_kib * 1024)
+
     @property
     def active(self) -> bool:
-        return self._log is not None and not self.stopped.is_set() and self.error is None
+        """Writing a file now."""
+        log_ = self._log
+        return (
+            log_ is not None
+            and not log_.closed
+            and not self.stopped.is_set()
+            and self.error is None
+        )
+
+    def start_file(self, path: str | Path) -> None:
+        """Start writing a file (a live-only recorder, or one whose file ended): it begins with
+        the configuration, camera, calibration and detectors as they are now. RecordingError
+        if the file cannot be made, or one is being written."""
+        if self.active:
+            raise RecordingError(f"already recording to {self.path}")
+        new = self._new_log(Path(path))
+        opened = threading.Event()
+        try:
+            self._queue.put(("open_file", new, opened), timeout=5.0)
+        except queue.Full:
+            new.abandon()
+            raise RecordingError("the recorder is behind: try again in a moment") from None
+        opened.wait(10.0)
+
+    def stop_file(self, timeout_s: float = 30.0) -> None:
+        """Finish the file being written (the live view goes on)."""
+        closed = threading.Event()
+        try:
+            self._queue.put(("close_file", closed), timeout=5.0)
+        except queue.Full:
+            raise RecordingError("the recorder is behind: try again in a moment") from None
+        closed.wait(timeout_s)
 
     def stop(self, timeout_s: float = 30.0) -> None:
         """Write what is queued, finish the file and end the thread."""
@@ -232,7 +292,8 @@ class Recorder:
         c = self.counts
         log_ = self._log
         return {
-            "path": str(self.path),
+            "path": None if self.path is None else str(self.path),
+            "live": None if self.live is None else self.live.url(),
             "active": self.active,
             "frames": c.frames,
             "joint_states": c.joint_states,
@@ -245,7 +306,7 @@ class Recorder:
     # ---------------------------------------------------------------- producers (the stages)
 
     def _put(self, item: tuple[Any, ...]) -> None:
-        if self.stopped.is_set() or self.error is not None:
+        if self.stopped.is_set() or (self.error is not None and self.live is None):
             return
         if not self.wait:
             try:
@@ -254,7 +315,7 @@ class Recorder:
                 with self._lock:
                     self.counts.dropped += 1
             return
-        while self.error is None and not self.stopped.is_set():
+        while (self.error is None or self.live is not None) and not self.stopped.is_set():
             try:
                 self._queue.put(item, timeout=0.5)
                 return
@@ -329,7 +390,10 @@ class Recorder:
             item = self._queue.get()
             if item is _STOP:
                 break
-            if self.error is not None:
+            if item[0] in ("open_file", "close_file"):
+                self._file_command(item)
+                continue
+            if self.error is not None and self.live is None:
                 continue  # stopped on an error: what is left is let go
             try:
                 self._write(item)
@@ -343,6 +407,50 @@ class Recorder:
                 self._log.close()
             except RecordingError as exc:
                 self._fail(str(exc))
+        if self.live is not None:
+            self.live.close()
+
+    def _file_command(self, item: tuple[Any, ...]) -> None:
+        """Start or finish a file from the recorder thread (the one that writes)."""
+        if item[0] == "close_file":
+            if self._log is not None and not self._log.closed and self.error is None:
+                try:
+                    self._log.close()
+                except RecordingError as exc:
+                    self._fail(str(exc))
+            item[1].set()
+            return
+        new, opened = item[1], item[2]
+        self._log, self.path, self.error = new, new.path, None
+        self.counts = _Counts()
+        self.started_wall = time.monotonic()
+        try:
+            for topic, (t, data) in self._latched.items():
+                new.write_encoded(topic, t, data)
+        except RecordingError as exc:
+            self._fail(str(exc))
+        opened.set()
+
+    def _emit(self, topic: str, t: float, message: Any) -> None:
+        """Encode one message and hand it to the live view and the file."""
+        data = encode(topic, message)
+        if topic in LATCHED:
+            self._latched[topic] = (t, data)
+        if self.live is not None:
+            self._publish(topic, t, data)
+        log_ = self._log
+        if log_ is not None and not log_.closed and self.error is None:
+            log_.write_encoded(topic, t, data)
+
+    def _publish(self, topic: str, t: float, data: bytes) -> None:
+        assert self.live is not None
+        try:
+            self.live.publish(topic, t, data)
+        except Exception as exc:  # the live view is a convenience: the recording goes on
+            message = f"the Foxglove live view failed: {type(exc).__name__}: {exc}"
+            if message != self._live_error:
+                log.warning("%s", message)
+            self._live_error = message
 
     def _fail(self, message: str) -> None:
         self.error = message
@@ -353,8 +461,7 @@ class Recorder:
     def _write(self, item: tuple[Any, ...]) -> None:
         from armvision.recording import ros
 
-        out = self._log
-        assert out is not None
+        out = _Emitter(self)
         kind = item[0]
         if kind == "frame":
             started = time.perf_counter()
@@ -385,6 +492,9 @@ class Recorder:
         elif kind == "state":
             self._write_state(out, item[1], item[2])
             self.counts.states += 1
+            if self.live is not None and self.counts.states % LIVE_REPEAT == 0:
+                for topic, (t, data) in self._latched.items():  # for viewers that came late
+                    self._publish(topic, t, data)
         elif kind == "calibration":
             t, cal = item[1], item[2]
             out.write("/armvision/calibration", t, plain(calibration_record(cal)))
@@ -393,7 +503,7 @@ class Recorder:
         elif kind == "json":
             out.write(item[1], item[2], item[3])
 
-    def _write_state(self, out: McapLog, state: SystemState, stalls: int) -> None:
+    def _write_state(self, out: _Emitter, state: SystemState, stalls: int) -> None:
         from armvision.recording import ros
 
         t = float(state.time)

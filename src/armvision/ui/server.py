@@ -773,9 +773,10 @@ class OperatorUI:
 
         _no_parameters("recording/start", body)
         with self._recording_lock:
-            if self.recording is not None and self.recording.active:
+            current = self.recording
+            if current is not None and current.active:
                 raise RequestError(
-                    409, f"already recording to {self.recording.path}: stop that recording first"
+                    409, f"already recording to {current.path}: stop that recording first"
                 )
             folder = Path(self.config.record.dir)
             try:
@@ -787,24 +788,39 @@ class OperatorUI:
                     "folder you can write to",
                 ) from None
             path = _new_recording_path(folder)
+            live = current is not None and current.live is not None and not current.stopped.is_set()
             try:
-                recorder = Recorder(path, self.config, wait=False).open()
+                if live:  # the live view's recorder writes the file too
+                    assert current is not None
+                    current.start_file(path)
+                    recorder = current
+                else:
+                    recorder = Recorder(path, self.config, wait=False).open()
             except RecordingError as exc:
                 raise RequestError(400, str(exc)) from None
-            self.system.attach_recorder(recorder)
+            if not live:
+                self.system.attach_recorder(recorder)
             self.recording = recorder
         self.changed()
         return {"recording": recorder.status()}
 
     def stop_recording(self, body: Any) -> dict[str, Any]:
         """Stop recording and finish the file (RequestError 409 if not recording)."""
+        from armvision.runtime.recorder import RecordingError
+
         _no_parameters("recording/stop", body)
         with self._recording_lock:
             recorder = self.recording
             if recorder is None or not recorder.active:
                 raise RequestError(409, "not recording: press Record first")
-            self.system.detach_recorder()
-            recorder.stop()
+            if recorder.live is not None:
+                try:
+                    recorder.stop_file()  # the live view goes on
+                except RecordingError as exc:
+                    raise RequestError(409, str(exc)) from None
+            else:
+                self.system.detach_recorder()
+                recorder.stop()
         self.changed()
         return {"recording": recorder.status()}
 
