@@ -165,13 +165,20 @@ def test_replay_of_a_jpeg_recording_keeps_the_tracks_within_a_millimetre(
     assert report["detections_replayed"] == report["detections_recorded"] > 0
 
 
-def test_a_lossless_recording_replays_exactly_while_the_arm_moves(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
+    """1 s of the default scene, then Home (the arm moves): PNG colour."""
     from armvision.tasks.basic import home
 
     config = with_record(Config(), color_format="png")
-    recorded = record_lockstep(tmp_path / "moving.mcap", 1.0, task=home, config=config)
+    path = tmp_path_factory.mktemp("recording") / "moving.mcap"
+    return record_lockstep(path, 1.0, task=home, config=config)
+
+
+def test_a_lossless_recording_replays_exactly_while_the_arm_moves(
+    moving: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recorded = moving
     out = tmp_path / "replayed.mcap"
     assert main(["replay", str(recorded.path), "--json", "--record", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
@@ -204,3 +211,74 @@ def test_perceive_replays_one_recorded_frame(
     args = ["perceive", "--replay", str(still.path), "--frame", "100000"]
     assert main([*args, "--out", str(tmp_path)]) == 2
     assert "no frame 100000" in capsys.readouterr().err
+
+
+def test_export_lerobot_writes_the_documented_dataset(
+    moving: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import pyarrow.parquet as pq
+
+    out = tmp_path / "dataset"
+    assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 0
+    assert "1 episode(s)" in capsys.readouterr().out
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert info["codebase_version"] == "v2.1" and info["fps"] == 30
+    assert info["total_episodes"] == 1 and info["splits"] == {"train": "0:1"}
+    (episode,) = [
+        json.loads(line) for line in (out / "meta/episodes.jsonl").read_text().splitlines()
+    ]
+    (task,) = [json.loads(line) for line in (out / "meta/tasks.jsonl").read_text().splitlines()]
+    assert task == {"task_index": 0, "task": "move the arm to its home pose"}
+    assert episode["tasks"] == [task["task"]] and episode["length"] == info["total_frames"]
+    data = out / info["data_path"].format(episode_chunk=0, episode_index=0)
+    table = pq.read_table(data)
+    import pyarrow as pa
+
+    types = {f.name: f.type for f in table.schema}
+    assert set(types) == {
+        "observation.state", "action", "observation.images.depth", "timestamp",
+        "frame_index", "episode_index", "index", "task_index",
+    }  # fmt: skip
+    for key in ("observation.state", "action"):  # float32 vectors
+        assert pa.types.is_list(types[key]) and types[key].value_type == pa.float32()
+    assert types["observation.images.depth"] == pa.struct(
+        [("bytes", pa.binary()), ("path", pa.string())]
+    )  # LeRobot's (Hugging Face datasets') image
+    assert types["timestamp"] == pa.float32()
+    for key in ("frame_index", "episode_index", "index", "task_index"):
+        assert types[key] == pa.int64()
+    rows = table.to_pydict()
+    n = table.num_rows
+    # The Home task's span at 30 FPS (its moving time, 2 s by default, and its settling).
+    assert n == episode["length"] and 55 <= n <= 120
+    assert rows["frame_index"] == list(range(n)) == rows["index"]
+    assert np.allclose(rows["timestamp"], np.arange(n) / 30.0, atol=1e-6)
+    for key in ("observation.state", "action"):
+        assert info["features"][key]["shape"] == [6]
+        assert info["features"][key]["names"] == list(VX300S.joint_names)
+    # The action ends at the commanded home pose; the readings get there (encoder noise).
+    home = np.asarray(rows["action"][-1])
+    assert np.allclose(home, VX300S.home, atol=1e-6)
+    assert np.abs(np.asarray(rows["observation.state"][-1]) - home).max() < np.radians(1.5)
+    assert np.abs(np.asarray(rows["observation.state"][0]) - home).max() > 0.5  # from sleep
+    # Depth is 16-bit PNG of millimetres; colour an mp4 of the same frames.
+    depth = cv2.imdecode(np.frombuffer(rows["observation.images.depth"][-1]["bytes"], np.uint8), -1)
+    assert depth.dtype == np.uint16 and depth.shape == (480, 640)
+    recorded = read_independently(moving.path)["/camera/aligned_depth_to_color/image_raw"]
+    assert any(  # the very millimetres of one of the recorded frames
+        np.array_equal(np.frombuffer(bytes(d.data), "<u2").reshape(480, 640), depth)
+        for *_, d in recorded
+    )
+    video = out / info["video_path"].format(
+        episode_chunk=0, video_key="observation.images.color", episode_index=0
+    )
+    capture = cv2.VideoCapture(str(video))
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == n
+    ok, image = capture.read()
+    assert ok and image.shape == (480, 640, 3)
+    (stats,) = [
+        json.loads(line) for line in (out / "meta/episodes_stats.jsonl").read_text().splitlines()
+    ]
+    assert stats["stats"]["observation.state"]["count"] == [n]
+    assert np.asarray(stats["stats"]["observation.images.color"]["mean"]).shape == (3, 1, 1)
+    assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 2  # not over it

@@ -21,7 +21,7 @@ from armvision.cli.evaluate import (
 )
 from armvision.cli.info import cmd_config, cmd_info
 from armvision.cli.perceive import cmd_perceive, cmd_sim_snapshot
-from armvision.cli.record import add_record_option, add_replay_parser
+from armvision.cli.record import add_export_parser, add_record_option, add_replay_parser
 from armvision.cli.tasks import add_parsers
 from armvision.config import (
     Config,
@@ -71,6 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_eval_parsers(eval_sub)
     add_parsers(sub, eval_sub)
     add_replay_parser(sub)
+    add_export_parser(sub)
     _add_profile_options(eval_sub)
     return parser
 

@@ -151,3 +151,37 @@ def recorded_frame(path: str, index: int | None) -> tuple[Any, Any, Any, dict[st
         "joint_positions": None if joints is None else [float(v) for v in joints],
     }
     return frame, T_base_cam, joints, source
+
+
+def cmd_export_lerobot(args: argparse.Namespace, config: Config) -> int:
+    from armvision.cli.args import writable_dir
+    from armvision.recording.lerobot import export_lerobot
+    from armvision.recording.reader import Recording
+
+    for path in args.files:
+        Recording(path)  # a missing or wrong file: one line, before anything is written
+    out = writable_dir(args.out)
+    info = export_lerobot(args.files, out, fps=args.fps)
+    print(
+        f"wrote a LeRobot {info['codebase_version']} dataset to {out}: "
+        f"{info['total_episodes']} episode(s), {info['total_frames']} frames at "
+        f"{info['fps']:g} FPS, {info['total_tasks']} task(s)"
+    )
+    return 0
+
+
+def add_export_parser(sub: Any) -> None:
+    from armvision.cli.args import float_in, out_dir
+
+    export = sub.add_parser(
+        "export-lerobot",
+        help="write recordings' task episodes as a LeRobot dataset (parquet, mp4, meta)",
+    )
+    export.add_argument("files", nargs="+", metavar="FILE.mcap", help="recordings armvision made")
+    export.add_argument("--out", type=out_dir, required=True, metavar="DIR", help="a new folder")
+    export.add_argument(
+        "--fps",
+        type=float_in(0.0, 120.0, "frames a second above 0 and at most 120", True),
+        help="frames a second (default: the recording's camera rate)",
+    )
+    export.set_defaults(func=cmd_export_lerobot)

@@ -40,6 +40,7 @@ TOPICS: dict[str, str] = {
     "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
     "/vx300s/joint_states": "sensor_msgs/msg/JointState",
     "/armvision/frame_joint_states": "sensor_msgs/msg/JointState",
+    "/armvision/joint_commands": "sensor_msgs/msg/JointState",
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/armvision/markers": "visualization_msgs/msg/MarkerArray",
@@ -59,6 +60,7 @@ DEPTH_TOPIC = "/camera/aligned_depth_to_color/image_raw"
 INFO_TOPIC = "/camera/color/camera_info"
 JOINTS_TOPIC = "/vx300s/joint_states"
 FRAME_JOINTS_TOPIC = "/armvision/frame_joint_states"
+COMMANDS_TOPIC = "/armvision/joint_commands"
 
 #: Marker colours (RGBA 0..1) of the track cylinders by label; liquid has its own colour.
 LABEL_COLOURS = {

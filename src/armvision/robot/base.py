@@ -17,6 +17,7 @@ import abc
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -205,6 +206,9 @@ class ArmBase(abc.ABC):
     gripper: Gripper
     #: A real arm's moves end when their profile does (Interbotix waits the same way).
     settle_time: float = 0.0
+    #: Told every joint target the arm accepts (a checked move's goal, a streamed target), rad:
+    #: a recording's commanded joints. Never lets an exception through to the motion.
+    command_listener: Callable[[Array], None] | None = None
 
     def __init__(
         self,
@@ -318,8 +322,17 @@ class ArmBase(abc.ABC):
         self.last_error = None
         self._last_stream = None
         self._motion_end = self._now() + checked.moving_time
+        self._commanded(checked.q_goal)
         self._execute(checked, blocking)
         return True
+
+    def _commanded(self, q: Array) -> None:
+        listener = self.command_listener
+        if listener is not None:
+            try:
+                listener(np.array(q, dtype=float))
+            except Exception:  # a listener's fault must not stop the arm
+                log.exception("the joint command listener failed")
 
     @property
     def moving(self) -> bool:
@@ -443,5 +456,6 @@ class ArmBase(abc.ABC):
         q = np.clip(q, self.model.lower, self.model.upper)
         self._last_stream = (now, q)
         self.last_error = None
+        self._commanded(q)
         self._stream(q)
         return True

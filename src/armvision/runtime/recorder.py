@@ -353,6 +353,10 @@ class Recorder:
             self._next_state = max(self._next_state + 1.0 / self.settings.state_hz, t)
             self.state_sample(system.snapshot(), system.fusion_stalls)
 
+    def command(self, t: float, q: Any) -> None:
+        """A joint target the arm accepted at ``t`` (a move's goal, a streamed target)."""
+        self._put(("command", t, np.array(q, dtype=float)))
+
     def joints(self, t: float, q_raw: Any) -> None:
         """A fusion cycle's encoder reading (raw) at ``t``."""
         self._put(("joints", t, np.array(q_raw, dtype=float)))
@@ -484,6 +488,9 @@ class Recorder:
         elif kind == "frame_joints":
             t = item[1]
             out.write(ros.FRAME_JOINTS_TOPIC, t, ros.joint_state(t, self.joint_names, item[2]))
+        elif kind == "command":
+            t = item[1]
+            out.write(ros.COMMANDS_TOPIC, t, ros.joint_state(t, self.joint_names, item[2]))
         elif kind == "joints":
             out.write(
                 ros.JOINTS_TOPIC, item[1], ros.joint_state(item[1], self.joint_names, item[2])

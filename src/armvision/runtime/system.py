@@ -58,7 +58,7 @@ from armvision.perception.detection import FrameContext, ObjectDetector
 from armvision.perception.factory import object_detector as configured_object_detector
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel, LiquidLevelMeter
 from armvision.perception.tags import TagDetector
-from armvision.robot.base import Arm
+from armvision.robot.base import Arm, ArmBase
 from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.context import Task
 from armvision.runtime.jobs import Jobs
@@ -248,10 +248,14 @@ class System:
         self.detach_recorder()
         recorder.start_of_run(self.clock(), self)
         self.recorder = recorder
+        if isinstance(self.arm, ArmBase):  # the joint targets the arm accepts
+            self.arm.command_listener = lambda q: recorder.command(self.clock(), q)
 
     def detach_recorder(self) -> Recorder | None:
         """Stop recording (the file is finished); the recorder that was attached, if any."""
         recorder, self.recorder = self.recorder, None
+        if isinstance(self.arm, ArmBase):
+            self.arm.command_listener = None
         if recorder is not None:
             recorder.stop()
         return recorder
