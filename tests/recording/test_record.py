@@ -282,3 +282,15 @@ def test_export_lerobot_writes_the_documented_dataset(
     assert stats["stats"]["observation.state"]["count"] == [n]
     assert np.asarray(stats["stats"]["observation.images.color"]["mean"]).shape == (3, 1, 1)
     assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 2  # not over it
+
+
+def test_replay_of_a_missing_or_foreign_file_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    foreign = tmp_path / "notes.mcap"
+    foreign.write_text("not a recording")
+    for path, says in ((tmp_path / "none.mcap", "no recording at"), (foreign, "not an MCAP")):
+        for command in (["replay", str(path)], ["export-lerobot", str(path), "--out", "x"]):
+            assert main(command) == 2
+            err = capsys.readouterr().err
+            assert says in err and err.count("\n") == 1

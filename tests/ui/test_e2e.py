@@ -224,6 +224,33 @@ def test_a_detector_switches_off_and_on(page: Page, ui: RunningUI) -> None:
     expect(objects).to_be_checked()
 
 
+def test_record_then_stop_recording(
+    page: Page, ui: RunningUI, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    import dataclasses
+
+    from armvision.recording.reader import Recording
+
+    app = ui.server.ui
+    folder = tmp_path_factory.mktemp("recordings")
+    app.config = dataclasses.replace(
+        app.config, record=dataclasses.replace(app.config.record, dir=str(folder))
+    )
+    button = page.locator("#btn-record")
+    expect(button).to_have_text("Record")
+    button.click()
+    expect(button).to_have_text("Stop recording", timeout=5_000)
+    expect(page.locator("#record-status")).to_contain_text(str(folder), timeout=5_000)
+    time.sleep(1.5)
+    button.click()
+    expect(button).to_have_text("Record", timeout=10_000)
+    expect(page.locator("#record-status")).to_contain_text("recorded")
+    (path,) = folder.iterdir()
+    frames = [m for m in Recording(path).messages() if m.topic.endswith("image_raw")]
+    assert frames  # a finished file (the streaming reader read it to its end)
+    assert not Recording(path).truncated
+
+
 def test_stop_during_a_follow(page: Page, ui: RunningUI) -> None:
     page.locator("#btn-follow-tag").click()
     expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)

@@ -223,7 +223,8 @@ function renderRecording(rec) {
   if (rec) {
     const mb = isNum(rec.bytes) ? ` ${(rec.bytes / 1e6).toFixed(1)} MB` : '';
     const dropped = isNum(rec.dropped) && rec.dropped > 0 ? `, ${rec.dropped} dropped` : '';
-    text = (active ? 'recording ' : 'recorded ') + String(rec.path) + mb + dropped;
+    if (rec.path) text = (active ? 'recording ' : 'recorded ') + String(rec.path) + mb + dropped;
+    if (rec.live) text = (text ? text + '; ' : '') + 'live to Foxglove at ' + String(rec.live);
     if (rec.error && rec.error !== recordErrorShown) {
       recordErrorShown = rec.error;
       showError(rec.error);
