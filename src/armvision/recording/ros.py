@@ -54,6 +54,7 @@ TOPICS: dict[str, str] = {
     "/armvision/tracks": "json",
     "/armvision/detections": "json",
     "/armvision/tags": "json",
+    "/armvision/clock": "json",
 }
 COLOR_TOPIC = "/camera/color/image_raw/compressed"
 DEPTH_TOPIC = "/camera/aligned_depth_to_color/image_raw"
@@ -61,6 +62,10 @@ INFO_TOPIC = "/camera/color/camera_info"
 JOINTS_TOPIC = "/vx300s/joint_states"
 FRAME_JOINTS_TOPIC = "/armvision/frame_joint_states"
 COMMANDS_TOPIC = "/armvision/joint_commands"
+#: The clock's exact seconds (a float) of each frame and fusion cycle, written just before it:
+#: stamps and log times are whole nanoseconds, and a replay must see the very same times (a
+#: track dropped after exactly ``drop_after_s`` would otherwise be kept one frame longer).
+CLOCK_TOPIC = "/armvision/clock"
 
 #: Marker colours (RGBA 0..1) of the track cylinders by label; liquid has its own colour.
 LABEL_COLOURS = {

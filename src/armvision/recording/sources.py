@@ -26,20 +26,25 @@ from armvision.robot.base import ArmBase, GripperBase, TrapezoidalTrajectory
 
 Array = NDArray[np.float64]
 
-_FRAME_TOPICS = (ros.INFO_TOPIC, ros.COLOR_TOPIC, ros.DEPTH_TOPIC, "/armvision/camera")
+_FRAME_TOPICS = (
+    ros.INFO_TOPIC, ros.COLOR_TOPIC, ros.DEPTH_TOPIC, "/armvision/camera", ros.CLOCK_TOPIC,
+)  # fmt: skip
 
 
 def recorded_frames(recording: Recording) -> Iterator[tuple[RGBDFrame, int]]:
     """(frame, depth message's log ns) for every complete recorded frame, in order."""
     intr: Intrinsics | None = None
-    exact: Intrinsics | None = None
+    recorded: Intrinsics | None = None
     color: tuple[int, Any] | None = None
+    exact_t: tuple[int, float] | None = None  # the clock's seconds of the frame coming
     index = 0
     for msg in recording.messages(_FRAME_TOPICS):
-        if msg.topic == "/armvision/camera":
-            exact = Intrinsics(**{**msg.value["intrinsics"]})
+        if msg.topic == ros.CLOCK_TOPIC:
+            exact_t = (msg.log_ns, float(msg.value["t"]))
+        elif msg.topic == "/armvision/camera":
+            recorded = Intrinsics(**{**msg.value["intrinsics"]})
         elif msg.topic == ros.INFO_TOPIC:
-            intr = exact or ros.intrinsics_of(msg.value)
+            intr = recorded or ros.intrinsics_of(msg.value)
         elif msg.topic == ros.COLOR_TOPIC:
             color = (msg.log_ns, msg.value)
         elif msg.topic == ros.DEPTH_TOPIC and color is not None and color[0] == msg.log_ns:
@@ -52,10 +57,10 @@ def recorded_frames(recording: Recording) -> Iterator[tuple[RGBDFrame, int]]:
                 )
             for a in (rgb, depth):
                 a.flags.writeable = False
-            yield (
-                RGBDFrame(rgb, depth, intr, ros.seconds(msg.value.header.stamp), index),
-                msg.log_ns,
-            )
+            t = ros.seconds(msg.value.header.stamp)
+            if exact_t is not None and exact_t[0] == msg.log_ns:
+                t = exact_t[1]
+            yield RGBDFrame(rgb, depth, intr, t, index), msg.log_ns
             index += 1
             color = None
 
@@ -136,8 +141,13 @@ class RecordedArm(ArmBase):
         times: list[float] = []
         positions: list[Array] = []
         recording = Recording(path)
-        for msg in recording.messages([ros.JOINTS_TOPIC, ros.FRAME_JOINTS_TOPIC]):
-            times.append(ros.seconds(msg.value.header.stamp))
+        exact: dict[int, float] = {}
+        topics = [ros.JOINTS_TOPIC, ros.FRAME_JOINTS_TOPIC, ros.CLOCK_TOPIC]
+        for msg in recording.messages(topics):
+            if msg.topic == ros.CLOCK_TOPIC:
+                exact[msg.log_ns] = float(msg.value["t"])
+                continue
+            times.append(exact.get(msg.log_ns, ros.seconds(msg.value.header.stamp)))
             positions.append(np.asarray(msg.value.position, dtype=float))
         if not times:
             raise ArmvisionError(f"{recording.path} holds no joint states")

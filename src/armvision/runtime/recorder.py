@@ -474,6 +474,7 @@ class Recorder:
             if not self._camera_written:
                 self._camera_written = True
                 out.write("/armvision/camera", t, {"intrinsics": frame.intrinsics.to_dict()})
+            out.write(ros.CLOCK_TOPIC, t, {"t": t})
             out.write(ros.INFO_TOPIC, t, ros.camera_info(frame.intrinsics, t))
             out.write(
                 ros.COLOR_TOPIC,
@@ -492,6 +493,7 @@ class Recorder:
             t = item[1]
             out.write(ros.COMMANDS_TOPIC, t, ros.joint_state(t, self.joint_names, item[2]))
         elif kind == "joints":
+            out.write(ros.CLOCK_TOPIC, item[1], {"t": float(item[1])})
             out.write(
                 ros.JOINTS_TOPIC, item[1], ros.joint_state(item[1], self.joint_names, item[2])
             )

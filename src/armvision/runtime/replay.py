@@ -34,6 +34,7 @@ from armvision.runtime.recorder import Recorder
 from armvision.runtime.state import CalibrationStatus
 
 _EVENT_TOPICS = (
+    ros.CLOCK_TOPIC,
     ros.JOINTS_TOPIC,
     ros.DEPTH_TOPIC,
     "/armvision/calibration",
@@ -41,6 +42,9 @@ _EVENT_TOPICS = (
     "/armvision/tracks",
     "/armvision/detections",
 )
+
+
+_TIMED = (ros.JOINTS_TOPIC, ros.DEPTH_TOPIC)  # events with the clock's exact seconds before them
 
 
 def recorded_config(recording: Recording) -> Config:
@@ -85,6 +89,7 @@ class TrackChange:
     max_diff_mm: float = 0.0
     recorded_label: str | None = None
     replayed_label: str | None = None
+    differs_at: list[float] = dataclasses.field(default_factory=list)  # samples with one only
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -221,8 +226,14 @@ def replay(
     wall_start = time.monotonic()
     camera.start()
     try:
+        exact: dict[int, float] = {}  # the clock's seconds, by log time
         for msg in recording.messages(_EVENT_TOPICS):
-            t = msg.t if msg.topic.startswith("/armvision/") else _stamp(msg)
+            if msg.topic == ros.CLOCK_TOPIC:
+                exact[msg.log_ns] = float(msg.value["t"])
+                continue
+            t = exact.pop(msg.log_ns, None) if msg.topic in _TIMED else None
+            if t is None:
+                t = msg.t if msg.topic.startswith("/armvision/") else _stamp(msg)
             if first_t is None:
                 first_t = t
                 clock.t = t
@@ -322,6 +333,8 @@ def _compare(report: ReplayReport, system: Any, msg: Any) -> None:
         if rep is not None:
             change.replayed += 1
             change.replayed_label = rep.label
+        if (rec is None) != (rep is None) and len(change.differs_at) < 10:
+            change.differs_at.append(float(msg.value["t"]))
         if rec is not None and rep is not None:
             change.both += 1
             diff = 1000.0 * float(np.linalg.norm(np.asarray(rec["position_m"]) - rep.p_base))
