@@ -175,6 +175,16 @@ def moving(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
     return record_lockstep(path, 1.0, task=home, config=config)
 
 
+def test_a_realtime_replay_keeps_the_recordings_pace(
+    still: Recorded, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["replay", str(still.path), "--json", "--realtime"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["recorded_s"] == pytest.approx(2.0, abs=0.1)
+    assert report["wall_s"] >= report["recorded_s"] - 0.05  # never ahead of the recording
+    assert report["same_tracks"] and report["max_diff_mm"] < 1.0
+
+
 def test_a_lossless_recording_replays_exactly_while_the_arm_moves(
     moving: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -55,6 +55,7 @@ TOPICS: dict[str, str] = {
     "/armvision/detections": "json",
     "/armvision/tags": "json",
     "/armvision/clock": "json",
+    "/armvision/frame_clock": "json",
 }
 COLOR_TOPIC = "/camera/color/image_raw/compressed"
 DEPTH_TOPIC = "/camera/aligned_depth_to_color/image_raw"
@@ -62,10 +63,12 @@ INFO_TOPIC = "/camera/color/camera_info"
 JOINTS_TOPIC = "/vx300s/joint_states"
 FRAME_JOINTS_TOPIC = "/armvision/frame_joint_states"
 COMMANDS_TOPIC = "/armvision/joint_commands"
-#: The clock's exact seconds (a float) of each frame and fusion cycle, written just before it:
-#: stamps and log times are whole nanoseconds, and a replay must see the very same times (a
-#: track dropped after exactly ``drop_after_s`` would otherwise be kept one frame longer).
+#: The clock's exact seconds (a float) of each fusion cycle and of each frame, written just
+#: before it: stamps and log times are whole nanoseconds, and a replay must see the very same
+#: times (a track dropped after exactly ``drop_after_s`` would otherwise be kept one frame
+#: longer). Two topics: each has one producer, so each one's times only go forward.
 CLOCK_TOPIC = "/armvision/clock"
+FRAME_CLOCK_TOPIC = "/armvision/frame_clock"
 
 #: Marker colours (RGBA 0..1) of the track cylinders by label; liquid has its own colour.
 LABEL_COLOURS = {

@@ -27,7 +27,7 @@ from armvision.robot.base import ArmBase, GripperBase, TrapezoidalTrajectory
 Array = NDArray[np.float64]
 
 _FRAME_TOPICS = (
-    ros.INFO_TOPIC, ros.COLOR_TOPIC, ros.DEPTH_TOPIC, "/armvision/camera", ros.CLOCK_TOPIC,
+    ros.INFO_TOPIC, ros.COLOR_TOPIC, ros.DEPTH_TOPIC, "/armvision/camera", ros.FRAME_CLOCK_TOPIC,
 )  # fmt: skip
 
 
@@ -39,7 +39,7 @@ def recorded_frames(recording: Recording) -> Iterator[tuple[RGBDFrame, int]]:
     exact_t: tuple[int, float] | None = None  # the clock's seconds of the frame coming
     index = 0
     for msg in recording.messages(_FRAME_TOPICS):
-        if msg.topic == ros.CLOCK_TOPIC:
+        if msg.topic == ros.FRAME_CLOCK_TOPIC:
             exact_t = (msg.log_ns, float(msg.value["t"]))
         elif msg.topic == "/armvision/camera":
             recorded = Intrinsics(**{**msg.value["intrinsics"]})
@@ -142,9 +142,9 @@ class RecordedArm(ArmBase):
         positions: list[Array] = []
         recording = Recording(path)
         exact: dict[int, float] = {}
-        topics = [ros.JOINTS_TOPIC, ros.FRAME_JOINTS_TOPIC, ros.CLOCK_TOPIC]
-        for msg in recording.messages(topics):
-            if msg.topic == ros.CLOCK_TOPIC:
+        clocks = (ros.CLOCK_TOPIC, ros.FRAME_CLOCK_TOPIC)
+        for msg in recording.messages([ros.JOINTS_TOPIC, ros.FRAME_JOINTS_TOPIC, *clocks]):
+            if msg.topic in clocks:
                 exact[msg.log_ns] = float(msg.value["t"])
                 continue
             times.append(exact.get(msg.log_ns, ros.seconds(msg.value.header.stamp)))

@@ -13,12 +13,15 @@ When the file cannot be written (disk full, file too large, the drive gone) the 
 so once, in one line, and stops; the run goes on.
 
 What is recorded, and on which topic (``armvision.recording.ros.TOPICS``): every frame read
-(colour JPEG, depth 16UC1 mm, CameraInfo) with the encoder reading taken with it; the encoder
-reading of every fusion cycle (``/vx300s/joint_states``); the detections and tags of every
-frame a detector ran on; at ``state_hz`` the fused end effector and the tracks on ``/tf``,
-the tracks as markers, and the tracks, task, thread health and liquid levels as JSON; at the
-start and on change the calibration (``/tf_static`` and JSON), the detectors switched on, and
-once the effective configuration.
+(colour JPEG or PNG, depth 16UC1 mm, CameraInfo); the encoder reading of every fusion cycle
+(``/vx300s/joint_states``) and the one each frame's object detector was given; the detections
+and tags of every frame a detector ran on; every joint target the arm accepted; the clock's
+exact seconds of each frame and cycle; at ``state_hz`` the fused end effector and the tracks
+on ``/tf``, the tracks as markers, and the tracks, task, thread health and liquid levels as
+JSON; at the start and on change the calibration (``/tf_static`` and JSON), the detectors
+switched on, and once the effective configuration. The recorder never reads a device itself:
+what it records is what the stages used (a second read of the simulated encoders would draw
+new noise and change the run).
 """
 
 from __future__ import annotations
@@ -474,7 +477,7 @@ class Recorder:
             if not self._camera_written:
                 self._camera_written = True
                 out.write("/armvision/camera", t, {"intrinsics": frame.intrinsics.to_dict()})
-            out.write(ros.CLOCK_TOPIC, t, {"t": t})
+            out.write(ros.FRAME_CLOCK_TOPIC, t, {"t": t})
             out.write(ros.INFO_TOPIC, t, ros.camera_info(frame.intrinsics, t))
             out.write(
                 ros.COLOR_TOPIC,

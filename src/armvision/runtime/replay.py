@@ -35,6 +35,7 @@ from armvision.runtime.state import CalibrationStatus
 
 _EVENT_TOPICS = (
     ros.CLOCK_TOPIC,
+    ros.FRAME_CLOCK_TOPIC,
     ros.JOINTS_TOPIC,
     ros.DEPTH_TOPIC,
     "/armvision/calibration",
@@ -44,7 +45,8 @@ _EVENT_TOPICS = (
 )
 
 
-_TIMED = (ros.JOINTS_TOPIC, ros.DEPTH_TOPIC)  # events with the clock's exact seconds before them
+#: clock topic -> the events whose exact seconds it gives
+_CLOCKS = {ros.CLOCK_TOPIC: ros.JOINTS_TOPIC, ros.FRAME_CLOCK_TOPIC: ros.DEPTH_TOPIC}
 
 
 def recorded_config(recording: Recording) -> Config:
@@ -226,12 +228,12 @@ def replay(
     wall_start = time.monotonic()
     camera.start()
     try:
-        exact: dict[int, float] = {}  # the clock's seconds, by log time
+        exact: dict[str, dict[int, float]] = {ros.JOINTS_TOPIC: {}, ros.DEPTH_TOPIC: {}}
         for msg in recording.messages(_EVENT_TOPICS):
-            if msg.topic == ros.CLOCK_TOPIC:
-                exact[msg.log_ns] = float(msg.value["t"])
+            if msg.topic in _CLOCKS:  # the clock's seconds of the cycle or frame that follows
+                exact[_CLOCKS[msg.topic]][msg.log_ns] = float(msg.value["t"])
                 continue
-            t = exact.pop(msg.log_ns, None) if msg.topic in _TIMED else None
+            t = exact[msg.topic].pop(msg.log_ns, None) if msg.topic in exact else None
             if t is None:
                 t = msg.t if msg.topic.startswith("/armvision/") else _stamp(msg)
             if first_t is None:
