@@ -63,6 +63,7 @@ from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.context import Task
 from armvision.runtime.jobs import Jobs
 from armvision.runtime.lockstep import DETECTORS, Lockstep, SimulatedWorld, require_world
+from armvision.runtime.planning_scene import occupancy_from_depth
 from armvision.runtime.state import (
     CalibrationStatus,
     HealthMeter,
@@ -334,7 +335,15 @@ class System:
         found = self.object_detector.detect(frame, context)
         detections = [d for d in found if _finite(d.center_cam, d.box, d.radius, d.height, d.score)]
         self.fusion.push_detections(frame.timestamp, detections)
-        self.store.set(detections=tuple(detections), detections_frame=frame)
+        T = np.asarray(context.T_base_cam, dtype=float)
+        objects = []
+        for d in detections:
+            p_base = T[:3, :3] @ np.asarray(d.center_cam, dtype=float) + T[:3, 3]
+            objects.append((p_base[:2], float(d.radius), float(p_base[2] + 0.5 * d.height)))
+        occupancy = occupancy_from_depth(
+            frame.depth, frame.intrinsics, T, context.joint_positions, objects, frame.timestamp
+        )
+        self.store.set(detections=tuple(detections), detections_frame=frame, occupancy=occupancy)
         _reject_non_finite("object detector", "detection", len(found) - len(detections))
 
     def liquid_once(self) -> bool:
