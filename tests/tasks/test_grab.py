@@ -146,6 +146,14 @@ def test_a_bottle_blocked_all_round_is_refused_and_nothing_moves() -> None:
     with sim_system(_config(), seed=2, scene=scene) as system:
         system.pump(system.clock() + 3.0)
         state = system.snapshot()
+        # The planning scene holds every object (true position within 2 cm, and the body's
+        # radius covering the true one), the table at the base's height.
+        scene_now = state.planning_scene
+        assert scene_now.table_z == pytest.approx(0.0, abs=0.005)
+        for obj in scene.objects:
+            near = min(scene_now.bodies, key=lambda b: math.hypot(b.xy[0] - obj.x, b.xy[1] - obj.y))
+            assert math.hypot(near.xy[0] - obj.x, near.xy[1] - obj.y) < 0.02
+            assert near.radius >= obj.radius - 0.005 and near.top >= obj.height - 0.005
         track = min(state.bottles(), key=lambda t: float(np.hypot(*(t.p_base[:2] - [0.4, 0.0]))))
         assert np.hypot(*(track.p_base[:2] - [0.4, 0.0])) < 0.02
         q0 = system.world.joint_positions()

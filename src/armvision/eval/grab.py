@@ -119,6 +119,7 @@ def run_trial(
             "objects": len(objects),
             "retries": result.get("retries"),
             "replans": result.get("replans"),
+            "joint_paths_planned": result.get("joint_paths_planned"),
             "collateral": collateral,
         }
 

@@ -85,7 +85,10 @@ class GrabResult:
     ``track_id`` the bottle's track; ``target`` (x, y, z) the bottle centre the approach aimed
     at, base frame; ``height`` its estimated height; ``grasp_z`` the grasp height; ``finger``
     the finger position after the lift (m); ``stages`` the stages completed, in order;
-    ``retries`` motions retried; ``duration_s`` from start to end (clock seconds).
+    ``retries`` motions retried; ``duration_s`` from start to end (clock seconds);
+    ``replans`` plans made again for a bottle that moved; ``approach_deg`` the heading of the
+    final approach (the paper's: the bottle's bearing); ``joint_paths_planned`` moves for which
+    no straight joint line was free and RRT-Connect found the path.
     """
 
     ok: bool
@@ -99,6 +102,8 @@ class GrabResult:
     retries: int = 0
     duration_s: float = 0.0
     replans: int = 0
+    approach_deg: float | None = None
+    joint_paths_planned: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -113,6 +118,8 @@ class GrabResult:
             "retries": self.retries,
             "replans": self.replans,
             "duration_s": round(self.duration_s, 3),
+            "approach_deg": None if self.approach_deg is None else round(self.approach_deg, 1),
+            "joint_paths_planned": self.joint_paths_planned,
         }
 
 
@@ -207,6 +214,7 @@ class _Grab:
         self.replans = 0
         self.plan: _Plan | None = None
         self.last_target: np.ndarray | None = None
+        self.joint_paths = 0
 
     def result(self, ok: bool, reason: str, finger: float | None = None) -> GrabResult:
         plan = self.plan
@@ -222,6 +230,8 @@ class _Grab:
             retries=self.retries,
             duration_s=self.ctx.now() - self.start,
             replans=self.replans,
+            approach_deg=None if plan is None else math.degrees(plan.yaw),
+            joint_paths_planned=self.joint_paths,
         )
 
     def remaining(self) -> float:
@@ -462,6 +472,7 @@ class _PlannedGrab(_Grab):
         self.paths_planned += 1
         if path is None:
             raise _Abort(f"{what}: no collision-free joint path found")
+        self.joint_paths += len(path) > 2
         accel = float(getattr(self.ctx.arm, "accel_time", DEFAULT_ACCEL_TIME_S))
         for q, duration in zip(path[1:], path_times(path, self.ctx.arm.model, accel), strict=True):
             self.move_q(what, q, duration)
