@@ -14,6 +14,7 @@ Units: metres; positions in the base frame.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -114,6 +115,29 @@ class OccupancyGrid:
                 for (x, y), z in zip(self.cells, self.tops)
             ],
         }
+
+
+@dataclass(frozen=True, eq=False)
+class DepthView:
+    """What the occupancy grid of one object frame is made from: the depth image (metres),
+    its intrinsics, the camera pose and joint angles the detector was given, the detected
+    objects (base-frame centre, radius, top z) and the frame's time. The object stage keeps
+    this (cheap); :attr:`grid` builds the grid when first asked for (a task planning, the UI),
+    so the stages' rates do not pay for it."""
+
+    depth: Array
+    intrinsics: Intrinsics
+    T_base_cam: Array
+    joint_positions: Array | None
+    objects: tuple[tuple[tuple[float, float], float, float], ...]
+    t: float
+
+    @functools.cached_property
+    def grid(self) -> OccupancyGrid:
+        return occupancy_from_depth(
+            self.depth, self.intrinsics, self.T_base_cam, self.joint_positions, self.objects,
+            self.t,
+        )  # fmt: skip
 
 
 def table_height(z_base: Array, search: tuple[float, float] = (-0.1, 0.1)) -> float | None:

@@ -63,7 +63,7 @@ from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.context import Task
 from armvision.runtime.jobs import Jobs
 from armvision.runtime.lockstep import DETECTORS, Lockstep, SimulatedWorld, require_world
-from armvision.runtime.planning_scene import occupancy_from_depth
+from armvision.runtime.planning_scene import DepthView
 from armvision.runtime.state import (
     CalibrationStatus,
     HealthMeter,
@@ -339,11 +339,18 @@ class System:
         objects = []
         for d in detections:
             p_base = T[:3, :3] @ np.asarray(d.center_cam, dtype=float) + T[:3, 3]
-            objects.append((p_base[:2], float(d.radius), float(p_base[2] + 0.5 * d.height)))
-        occupancy = occupancy_from_depth(
-            frame.depth, frame.intrinsics, T, context.joint_positions, objects, frame.timestamp
+            xy = (float(p_base[0]), float(p_base[1]))
+            objects.append((xy, float(d.radius), float(p_base[2] + 0.5 * d.height)))
+        joints = context.joint_positions
+        view = DepthView(
+            np.asarray(frame.depth),
+            frame.intrinsics,
+            T,
+            None if joints is None else np.asarray(joints, dtype=float),
+            tuple(objects),
+            frame.timestamp,
         )
-        self.store.set(detections=tuple(detections), detections_frame=frame, occupancy=occupancy)
+        self.store.set(detections=tuple(detections), detections_frame=frame, depth_view=view)
         _reject_non_finite("object detector", "detection", len(found) - len(detections))
 
     def liquid_once(self) -> bool:
