@@ -506,6 +506,12 @@ class GrabConfig:
     bottle is nearer than ``min_base_distance`` m to the base axis. An unreachable move is
     tried ``retries`` more times after ``retry_delay_s``; the whole task gives up after
     ``timeout_s``. Each move takes ``moving_time`` s (Interbotix's default timing otherwise).
+
+    ``planner``: ``collision`` (default) chooses among ``approach_candidates`` approach
+    directions all around the bottle the free one with the best clearance and reach, checked
+    against the planning scene with ``clearance`` m to spare, and plans in joint space (OMPL's
+    RRT-Connect, up to ``plan_time_s`` per query) where no straight move is free; ``paper``
+    is the paper's straight approach from the base, the baseline.
     """
 
     safe_pose: Vector3 = (0.1, 0.0, 0.65)
@@ -518,6 +524,10 @@ class GrabConfig:
     timeout_s: Annotated[Float, Field(gt=0.0, le=3600.0)] = 30.0
     moving_time: MovingTime = 1.5
     track_wait_s: Seconds = 10.0
+    planner: Literal["collision", "paper"] = "collision"
+    clearance: Annotated[Float, Field(ge=0.0, le=0.1)] = 0.01
+    approach_candidates: Annotated[Int, Field(ge=4, le=360)] = 24
+    plan_time_s: Annotated[Float, Field(gt=0.0, le=60.0)] = 2.0
 
 
 @dataclass(config=_STRICT)

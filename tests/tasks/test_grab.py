@@ -101,14 +101,17 @@ def test_grab_takes_the_bottle_with_a_clear_way_and_lifts_it() -> None:
         )
 
 
-def test_grab_refuses_a_bottle_too_close_to_the_base() -> None:
+@pytest.mark.parametrize(("planner", "stages"), [("collision", []), ("paper", ["safe_start"])])
+def test_grab_refuses_a_bottle_too_close_to_the_base(planner: str, stages: list[str]) -> None:
     # The rule is tested with the limit raised above the bottle's distance (a bottle within
-    # 5 cm of the base axis cannot stand there: the base is in the way).
-    with sim_system(_config(min_base_distance=0.5), seed=2, scene=_scene(BOTTLE)) as system:
+    # 5 cm of the base axis cannot stand there: the base is in the way). The collision-aware
+    # grab plans before it moves, the paper's after going to its safe start pose.
+    cfg = _config(min_base_distance=0.5, planner=planner)
+    with sim_system(cfg, seed=2, scene=_scene(BOTTLE)) as system:
         status = system.run_task("grab", grab)
         assert status.phase == "failed" and "not safe to grasp" in status.error
         assert system.world.held_object() is None
-        assert status.result["stages"] == ["safe_start"]
+        assert status.result["stages"] == stages
 
 
 def test_grab_without_a_bottle_says_so() -> None:
@@ -118,3 +121,52 @@ def test_grab_without_a_bottle_says_so() -> None:
     with sim_system(_config(track_wait_s=2.0), seed=2, scene=_scene(cup)) as system:
         status = system.run_task("grab", grab)
     assert status.phase == "failed" and "no confirmed track of any bottle" in status.error
+
+
+def _ring(n: int, centre: tuple[float, float], reach: float) -> list[ObjectSpec]:
+    return [
+        ObjectSpec(
+            f"ring{k}",
+            "bottle",
+            0.03,
+            0.21,
+            0.5,
+            "cola",
+            x=centre[0] + reach * math.cos(a),
+            y=centre[1] + reach * math.sin(a),
+        )
+        for k, a in enumerate(np.linspace(0.0, 2 * math.pi, n, endpoint=False) + 0.3)
+    ]
+
+
+def test_a_bottle_blocked_all_round_is_refused_and_nothing_moves() -> None:
+    # Six bottles in a ring 1.5 cm from the middle one: no way in for the open fingers.
+    middle = ObjectSpec("middle", "bottle", 0.03, 0.21, 0.5, "juice", x=0.40, y=0.0)
+    scene = _scene(middle, *_ring(6, (0.40, 0.0), 0.075))
+    with sim_system(_config(), seed=2, scene=scene) as system:
+        system.pump(system.clock() + 3.0)
+        state = system.snapshot()
+        # The planning scene holds every object (true position within 2 cm, and the body's
+        # radius covering the true one), the table at the base's height.
+        scene_now = state.planning_scene
+        assert scene_now.table_z == pytest.approx(0.0, abs=0.005)
+        for obj in scene.objects:
+            near = min(scene_now.bodies, key=lambda b: math.hypot(b.xy[0] - obj.x, b.xy[1] - obj.y))
+            assert math.hypot(near.xy[0] - obj.x, near.xy[1] - obj.y) < 0.02
+            assert near.radius >= obj.radius - 0.005 and near.top >= obj.height - 0.005
+        track = min(state.bottles(), key=lambda t: float(np.hypot(*(t.p_base[:2] - [0.4, 0.0]))))
+        assert np.hypot(*(track.p_base[:2] - [0.4, 0.0])) < 0.02
+        q0 = system.world.joint_positions()
+        finger0 = system.world.finger_position()
+        start = {o.spec.name: o.T_base_obj[:3, 3].copy() for o in system.world.objects()}
+        status = system.run_task("grab", grab, track_id=track.id)
+        assert status.phase == "failed"
+        assert status.error.startswith(f"every approach to bottle {track.id} at ("), status.error
+        assert "is blocked: by the bottle (track" in status.error
+        assert status.error.endswith("(nothing moved)")
+        assert status.result["stages"] == []
+        system.pump(system.clock() + 1.0)
+        assert np.max(np.abs(system.world.joint_positions() - q0)) < 1e-3
+        assert system.world.finger_position() == pytest.approx(finger0, abs=1e-3)
+        for o in system.world.objects():
+            assert np.linalg.norm(o.T_base_obj[:3, 3] - start[o.spec.name]) < 1e-3

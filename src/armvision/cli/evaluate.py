@@ -96,6 +96,8 @@ def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
 
     def progress(done: int, total: int, row: dict[str, Any]) -> None:
         verdict = "ok" if row["success"] else f"FAILED ({row['task_error'] or row['held']})"
+        if row["collateral"]:
+            verdict += f", disturbed {', '.join(c['name'] for c in row['collateral'])}"
         _say(f"trial {done}/{total}, scene {row['seed']}: {verdict}")
 
     result = evaluate_grab(
@@ -107,6 +109,13 @@ def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
     _print_summary(f"grab, {args.trials} random scenes from seed {args.seed}", result["summary"])
     for row in result["failures"]:
         print(f"  scene {row['seed']}: {row['task_phase']} {row['task_error'] or ''}")
+    for row in result["collateral"]:
+        hit = ", ".join(
+            f"{c['name']} ({c['kind']}) {'tipped' if c['tipped'] else 'moved'} "
+            f"{100 * c['moved_m']:.1f} cm"
+            for c in row["collateral"]
+        )
+        print(f"  scene {row['seed']}: disturbed {hit}")
     return 0
 
 

@@ -17,6 +17,14 @@ more with the arm holding still.
 Success, judged by the simulator alone: at the end of those 2 s the gripper holds a bottle
 (contacts on both finger pads) that stands at least 5 cm above where it started.
 ``time_s`` is the task's duration in simulation seconds.
+
+Collateral, from the simulator's truth too: every object other than the one the task took
+(the held one, else the one it aimed at) that moved more than :data:`COLLATERAL_MOVE_M`
+(its bottom centre, from the start of the trial to the end) or tipped over (upright at the
+start, not at the end), beyond what it does in the same scene, as long, with the arm holding
+still (a marker lying on its side may roll by itself). A trial is collateral-free when there
+is none;
+``collateral_free_rate`` is the share of such trials.
 """
 
 from __future__ import annotations
@@ -35,6 +43,8 @@ from armvision.errors import ConfigError
 LIFT_SUCCESS_M = 0.05
 #: ... and still held after this long, seconds.
 HOLD_S = 2.0
+#: Another object that moved more than this during the trial was disturbed, m.
+COLLATERAL_MOVE_M = 0.02
 
 
 def eval_config(config: Config) -> Config:
@@ -56,6 +66,8 @@ def run_trial(
         world = sim_world(system)
         start_z = {o.spec.name: float(o.T_base_obj[2, 3]) for o in world.objects()}
         start_xy = {o.spec.name: o.T_base_obj[:2, 3].copy() for o in world.objects()}
+        start_p = {o.spec.name: o.T_base_obj[:3, 3].copy() for o in world.objects()}
+        start_up = {o.spec.name: o.upright for o in world.objects()}
         status = system.run_task("grab", grab)
         system.pump(system.clock() + HOLD_S)
         held = world.held_object()
@@ -71,6 +83,27 @@ def run_trial(
             # The bottle the task aimed at: the object whose start position is nearest.
             name = min(start_xy, key=lambda n: np.linalg.norm(start_xy[n] - np.array(target[:2])))
             aim_error_mm = 1000.0 * float(np.linalg.norm(start_xy[name] - np.array(target[:2])))
+        taken = held
+        if taken is None and target is not None:
+            taken = name
+        alone = _unattended(config, scene_seed, world.time)
+        collateral = []
+        for o in objects.values():
+            if o.spec.name == taken:
+                continue
+            # What the object did in the trial beyond what it does with the arm holding still.
+            moved = float(np.linalg.norm(o.T_base_obj[:3, 3] - start_p[o.spec.name]))
+            moved_alone, tipped_alone = alone[o.spec.name]
+            tipped = start_up[o.spec.name] and not o.upright and not tipped_alone
+            if moved - moved_alone > COLLATERAL_MOVE_M or tipped:
+                collateral.append(
+                    {
+                        "name": o.spec.name,
+                        "kind": o.spec.kind,
+                        "moved_m": round(moved, 4),
+                        "tipped": bool(tipped),
+                    }
+                )
         return {
             "seed": scene_seed,
             "success": bool(ok),
@@ -86,6 +119,26 @@ def run_trial(
             "objects": len(objects),
             "retries": result.get("retries"),
             "replans": result.get("replans"),
+            "joint_paths_planned": result.get("joint_paths_planned"),
+            "collateral": collateral,
+        }
+
+
+def _unattended(config: Config, scene_seed: int, until: float) -> dict[str, tuple[float, bool]]:
+    """Per object, how far it moves and whether it tips over in the same scene, as long, with
+    the arm holding still (a marker lying on its side may roll by itself): what the arm did
+    not cause. Physics only, nothing rendered."""
+    from armvision.sim.world import SimWorld
+
+    with SimWorld(config, scene_seed) as world:
+        start = {o.spec.name: (o.T_base_obj[:3, 3].copy(), o.upright) for o in world.objects()}
+        world.run_until(until)
+        return {
+            o.spec.name: (
+                float(np.linalg.norm(o.T_base_obj[:3, 3] - start[o.spec.name][0])),
+                start[o.spec.name][1] and not o.upright,
+            )
+            for o in world.objects()
         }
 
 
@@ -135,16 +188,21 @@ def evaluate_grab(
                 progress(len(rows), trials, row)
         scene_seed += 1
     successes = sum(r["success"] for r in rows)
+    collateral_free = sum(not r["collateral"] for r in rows)
     times = [r["time_s"] for r in rows if r["success"] and r["time_s"] is not None]
     return {
         "summary": {
             "success_rate": successes / len(rows),
             "trials": len(rows),
             "successes": successes,
+            "collateral_free_rate": collateral_free / len(rows),
+            "collateral_free": collateral_free,
+            "planner": config.grab.planner,
             "median_time_s": float(np.median(times)) if times else None,
             "skipped_scenes_without_bottle": len(skipped),
         },
         "calibration": cal_report,
         "failures": [r for r in rows if not r["success"]],
+        "collateral": [r for r in rows if r["collateral"]],
         "trials": rows,
     }

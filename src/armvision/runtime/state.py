@@ -9,6 +9,7 @@ one as long as it likes without locking.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -27,6 +28,7 @@ from armvision.fusion.tracker import TrackState
 from armvision.perception.detection import Detection
 from armvision.perception.liquid import LiquidLevel
 from armvision.perception.tags import TagDetection
+from armvision.runtime.planning_scene import DepthView, OccupancyGrid, PlanningScene
 
 TaskPhase = Literal["idle", "queued", "running", "succeeded", "failed", "stopped"]
 
@@ -301,6 +303,19 @@ class SystemState:
     task: TaskStatus
     calibration: CalibrationStatus
     finger_position: float | None
+    depth_view: DepthView | None = None
+
+    @property
+    def occupancy(self) -> OccupancyGrid | None:
+        """The occupancy grid of the newest object frame (built when first asked for)."""
+        return None if self.depth_view is None else self.depth_view.grid
+
+    @functools.cached_property
+    def planning_scene(self) -> PlanningScene:
+        """What the arm must keep clear of now: the table, every confirmed track with its
+        uncertainty, the occupancy grid of the newest object frame and the arm's links (see
+        :mod:`armvision.runtime.planning_scene`)."""
+        return PlanningScene.build(self.tracks, self.occupancy, self.fusion.joint_positions)
 
     @property
     def T_base_cam(self) -> np.ndarray:
@@ -352,6 +367,7 @@ class _Pieces:
     detections_frame: RGBDFrame | None = None
     liquid: dict[int, LiquidEstimate] = field(default_factory=dict)
     task: TaskStatus = field(default_factory=TaskStatus)
+    depth_view: DepthView | None = None
 
 
 class StateStore:
@@ -377,7 +393,7 @@ class StateStore:
             return self._frame_seq, self._pieces.frame
 
     def set(self, **pieces: Any) -> None:
-        """Replace pieces: tags, tags_time, detections, detections_frame."""
+        """Replace pieces: tags, tags_time, detections, detections_frame, depth_view."""
         with self._lock:
             for key, value in pieces.items():
                 if not hasattr(self._pieces, key) or key in ("frame", "liquid", "task"):
@@ -434,6 +450,7 @@ class StateStore:
                 task=p.task,
                 calibration=calibration,
                 finger_position=finger_position,
+                depth_view=p.depth_view,
             )
 
 

@@ -63,6 +63,7 @@ from armvision.robot.tag_mount import tag_mount
 from armvision.runtime.context import Task
 from armvision.runtime.jobs import Jobs
 from armvision.runtime.lockstep import DETECTORS, Lockstep, SimulatedWorld, require_world
+from armvision.runtime.planning_scene import DepthView
 from armvision.runtime.recorder import Recorder
 from armvision.runtime.state import (
     CalibrationStatus,
@@ -379,7 +380,22 @@ class System:
         found = self.object_detector.detect(frame, context)
         detections = [d for d in found if _finite(d.center_cam, d.box, d.radius, d.height, d.score)]
         self.fusion.push_detections(frame.timestamp, detections)
-        self.store.set(detections=tuple(detections), detections_frame=frame)
+        T = np.asarray(context.T_base_cam, dtype=float)
+        objects = []
+        for d in detections:
+            p_base = T[:3, :3] @ np.asarray(d.center_cam, dtype=float) + T[:3, 3]
+            xy = (float(p_base[0]), float(p_base[1]))
+            objects.append((xy, float(d.radius), float(p_base[2] + 0.5 * d.height)))
+        joints = context.joint_positions
+        view = DepthView(
+            np.asarray(frame.depth),
+            frame.intrinsics,
+            T,
+            None if joints is None else np.asarray(joints, dtype=float),
+            tuple(objects),
+            frame.timestamp,
+        )
+        self.store.set(detections=tuple(detections), detections_frame=frame, depth_view=view)
         if (recorder := self.recorder) is not None:
             recorder.detections(frame.timestamp, tuple(detections))
         _reject_non_finite("object detector", "detection", len(found) - len(detections))

@@ -1,4 +1,23 @@
-"""Grab a bottle: the paper's grasp sequence with its safety rules.
+"""Grab a bottle: collision-aware (``grab.planner = "collision"``, the default) or the paper's
+straight approach from the base (``"paper"``, the baseline), with the paper's safety rules.
+
+**Collision-aware.** Wait for a confirmed bottle track, then plan before anything moves:
+:func:`~armvision.tasks.grasp_plan.plan_grasps` tries approaches all around each bottle
+against the planning scene (``state.planning_scene``: the table, every track with its
+uncertainty, the occupancy grid, :mod:`armvision.runtime.planning_scene`) and the bottle taken
+(without a ``track_id``) is the one with the best free candidate. If none is free, the task
+fails with the planner's reason ("every approach to bottle 3 ... is blocked by the cup (track
+5) at ...") and the arm and gripper do not move (it looks :data:`PLAN_LOOKS` times first:
+young tracks settle). Otherwise: open the gripper; the safe start pose; plan again with what
+the camera sees from there; to the chosen candidate's hover point along a joint path clear of
+the whole scene, the bottle included (:func:`~armvision.tasks.joint_plan.joint_path`: the
+straight joint line if free, else OMPL's RRT-Connect, timed within the joint speed limits;
+the next candidate if no path is found); down to the pre-grasp point; re-read the track (a
+bottle that moved more than :data:`MOVED_M` is planned for again from there, one the gripper
+hides keeps the plan); straight in; close; lift; check, as below. Every configuration moved
+through was checked against the scene.
+
+**The paper's sequence:**
 
 1. **Safe start.** Gripper open, end effector at ``grab.safe_pose`` (default (0.1, 0, 0.65) m,
    gripper level, pointing along +x). The ViperX-300s reaches it; for an arm or a configured
@@ -29,6 +48,7 @@ grasp opens the gripper and backs off to the waypoint, so nothing is left pinche
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,9 +57,12 @@ import numpy as np
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.geometry import as_xyz, make_T, rot_z
+from armvision.robot.base import DEFAULT_ACCEL_TIME_S
 from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.state import SystemState
+from armvision.tasks.grasp_plan import Checker, GraspCandidate, GraspRefusal, plan_grasps
+from armvision.tasks.joint_plan import joint_path, path_times
 from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
@@ -62,7 +85,10 @@ class GrabResult:
     ``track_id`` the bottle's track; ``target`` (x, y, z) the bottle centre the approach aimed
     at, base frame; ``height`` its estimated height; ``grasp_z`` the grasp height; ``finger``
     the finger position after the lift (m); ``stages`` the stages completed, in order;
-    ``retries`` motions retried; ``duration_s`` from start to end (clock seconds).
+    ``retries`` motions retried; ``duration_s`` from start to end (clock seconds);
+    ``replans`` plans made again for a bottle that moved; ``approach_deg`` the heading of the
+    final approach (the paper's: the bottle's bearing); ``joint_paths_planned`` moves for which
+    no straight joint line was free and RRT-Connect found the path.
     """
 
     ok: bool
@@ -76,6 +102,8 @@ class GrabResult:
     retries: int = 0
     duration_s: float = 0.0
     replans: int = 0
+    approach_deg: float | None = None
+    joint_paths_planned: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -90,6 +118,8 @@ class GrabResult:
             "retries": self.retries,
             "replans": self.replans,
             "duration_s": round(self.duration_s, 3),
+            "approach_deg": None if self.approach_deg is None else round(self.approach_deg, 1),
+            "joint_paths_planned": self.joint_paths_planned,
         }
 
 
@@ -184,6 +214,7 @@ class _Grab:
         self.replans = 0
         self.plan: _Plan | None = None
         self.last_target: np.ndarray | None = None
+        self.joint_paths = 0
 
     def result(self, ok: bool, reason: str, finger: float | None = None) -> GrabResult:
         plan = self.plan
@@ -199,6 +230,8 @@ class _Grab:
             retries=self.retries,
             duration_s=self.ctx.now() - self.start,
             replans=self.replans,
+            approach_deg=None if plan is None else math.degrees(plan.yaw),
+            joint_paths_planned=self.joint_paths,
         )
 
     def remaining(self) -> float:
@@ -363,14 +396,244 @@ class _Grab:
             )
 
 
+class _PlannedGrab(_Grab):
+    """The collision-aware grab (``grab.planner = "collision"``; the module docstring)."""
+
+    def __init__(self, ctx: TaskContext, cfg: GrabConfig, track_id: int | None) -> None:
+        super().__init__(ctx, cfg, track_id)
+        self.candidate: GraspCandidate | None = None
+        self.paths_planned = 0
+
+    # ------------------------------------------------------------ planning
+
+    def plan_for(
+        self, state: SystemState, track_id: int | None, prefer: int | None = None
+    ) -> tuple[TrackState, list[GraspCandidate]]:
+        """The bottle to take and its free candidates, best first; _Abort with the refusal's
+        reason if no bottle can be taken. ``track_id``: that bottle only; ``prefer``: that
+        one if it is about as good as the best."""
+        bottles = [t for t in state.bottles() if t.height is not None]
+        if track_id is not None:
+            bottles = [t for t in bottles if t.id == track_id]
+            if not bottles:
+                raise _Abort(f"the track of bottle {track_id} was lost")
+        scene = state.planning_scene
+        model = self.ctx.arm.model
+        best: tuple[float, TrackState, list[GraspCandidate]] | None = None
+        refusals: list[str] = []
+        for bottle in bottles:
+            d = math.hypot(float(bottle.p_base[0]), float(bottle.p_base[1]))
+            if d < self.cfg.min_base_distance:
+                refusals.append(
+                    f"bottle {bottle.id} is {100 * d:.1f} cm from the base axis, nearer than "
+                    f"{100 * self.cfg.min_base_distance:.0f} cm: not safe to grasp"
+                )
+                continue
+            found = plan_grasps(bottle, scene, self.cfg, model)
+            if isinstance(found, GraspRefusal):
+                refusals.append(found.reason)
+                continue
+            # A bottle the camera places surely beats one it barely sees (a clear bottle's
+            # fit may sit centimetres off); staying with the bottle chosen before is a plus.
+            score = found[0].score - CERTAINTY_WEIGHT * bottle.sigma_mm / 1000.0
+            if prefer is not None and bottle.id == prefer:
+                score += 0.01
+            if best is None or score > best[0]:
+                best = (score, bottle, found)
+        if best is None:
+            raise _Abort("; ".join(refusals) if refusals else "no bottle to grasp")
+        return best[1], best[2]
+
+    def checker(self, state: SystemState, exclude: int | None) -> Callable[[np.ndarray], float]:
+        check = Checker(state.planning_scene, exclude, self.ctx.arm.model)
+        opened = self.ctx.arm.model.finger_limits[1]
+        return lambda Q: check.least(Q, opened)[0]
+
+    def transit(self, what: str, q_goal: np.ndarray, state: SystemState) -> None:
+        """Move to ``q_goal`` along a joint path clear of the whole scene (the target
+        included): the straight joint line if it is free, else RRT-Connect's path."""
+        least = self.checker(state, None)
+        q_now = np.asarray(self.ctx.arm.get_joint_positions(), dtype=float)
+        # Never ask more than the start and goal have (the arm may start folded near the base).
+        needed = min(
+            self.cfg.clearance,
+            max(least(q_now[None]) - 0.002, 0.0),
+            max(least(np.asarray(q_goal)[None]) - 0.002, 0.0),
+        )
+        path = joint_path(
+            q_now,
+            q_goal,
+            least,
+            needed,
+            self.ctx.arm.model,
+            min(self.cfg.plan_time_s, max(self.remaining(), 0.1)),
+            seed=self.paths_planned,
+        )
+        self.paths_planned += 1
+        if path is None:
+            raise _Abort(f"{what}: no collision-free joint path found")
+        self.joint_paths += len(path) > 2
+        accel = float(getattr(self.ctx.arm, "accel_time", DEFAULT_ACCEL_TIME_S))
+        for q, duration in zip(path[1:], path_times(path, self.ctx.arm.model, accel), strict=True):
+            self.move_q(what, q, duration)
+
+    # ------------------------------------------------------------ motion
+
+    def move_q(self, what: str, q: np.ndarray, duration: float) -> None:
+        """A checked joint move, retried after a delay if refused; _Abort with the reason."""
+        duration = paced_time(self.ctx.arm, q, duration)
+        for attempt in range(self.cfg.retries + 1):
+            self.check_time()
+            if self.ctx.move_joints(q, moving_time=duration):
+                self.last_target = fk(q, self.ctx.arm.model)
+                return
+            if attempt < self.cfg.retries:
+                self.retries += 1
+                self.ctx.sleep(self.cfg.retry_delay_s)
+        raise _Abort(f"{what}: {self.ctx.arm.last_error or 'the arm refused the move'}")
+
+    def steps(self, what: str, qs: tuple[np.ndarray, ...]) -> None:
+        duration = max(self.cfg.moving_time / max(len(qs), 1), SEGMENT_TIME_S)
+        for q in qs:
+            self.move_q(what, q, duration)
+
+    def adopt(self, track: TrackState, candidate: GraspCandidate) -> None:
+        model = self.ctx.arm.model
+        self.candidate = candidate
+        x, y, _ = (float(v) for v in track.p_base)
+        top = float(track.p_base[2]) + 0.5 * float(track.height or 0.0)
+        self.plan = _Plan(
+            track,
+            candidate.yaw,
+            math.hypot(x, y),
+            candidate.grasp_z,
+            top,
+            fk(candidate.pregrasp, model),
+            fk(candidate.grasp, model),
+        )
+
+    def go_to(self, state: SystemState, track: TrackState, found: list[GraspCandidate]) -> None:
+        """To the hover point of the first candidate a free joint path reaches, and down to
+        its pre-grasp point."""
+        for candidate in found[:MAX_PATH_TRIES]:
+            try:
+                self.transit("to above the grasp", candidate.hover, state)
+            except _Abort as exc:
+                if "no collision-free joint path" not in str(exc):
+                    raise
+                continue
+            self.adopt(track, candidate)
+            self.steps("down to the pre-grasp point", candidate.descend)
+            return
+        raise _Abort(
+            f"no collision-free joint path reaches any of the {min(len(found), MAX_PATH_TRIES)}"
+            f" best grasps of bottle {track.id}"
+        )
+
+    def run(self) -> GrabResult:
+        ctx, cfg = self.ctx, self.cfg
+        ctx.progress(0.05, "waiting for a confirmed bottle track")
+        found_track = ctx.wait_until(
+            lambda: self.read_track() is not None,
+            min(cfg.track_wait_s, max(self.remaining(), 0.0)),
+        )
+        if not found_track:
+            which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
+            raise _Abort(
+                f"no confirmed track of {which} within {cfg.track_wait_s:.0f} s: is a bottle "
+                "in the camera's view and is object detection on?"
+            )
+        # Plan before anything moves: a refusal leaves the arm and gripper as they are. A young
+        # track's size and place are still settling (a phantom may even be dropped), so a
+        # refusal is made only after a few looks.
+        for attempt in range(PLAN_LOOKS):
+            try:
+                track, found = self.plan_for(ctx.state(), self.track_id)
+                break
+            except _Abort as exc:
+                if attempt == PLAN_LOOKS - 1:
+                    raise _Abort(f"{exc} (nothing moved)") from None
+                ctx.sleep(PLAN_LOOK_INTERVAL_S)
+        self.adopt(track, found[0])
+        self.stages.append("bottle_found")
+
+        ctx.progress(0.15, "opening the gripper")
+        ctx.open_gripper()
+        ctx.progress(0.2, "going to the safe start pose")
+        model = ctx.arm.model
+        T_safe = safe_start_pose(cfg.safe_pose, model)
+        q_safe, ok = ik(T_safe, ctx.arm.get_joint_positions(), model)
+        if not ok:
+            raise _Abort("the safe start pose is out of reach: set grab.safe_pose")
+        self.transit("safe start pose", q_safe, ctx.state())
+        self.stages.append("safe_start")
+
+        ctx.progress(0.35, "planning the grasp")
+        state = ctx.state()
+        track, found = self.plan_for(state, self.track_id, prefer=track.id)
+        self.go_to(state, track, found)
+        self.stages.append("waypoint")
+
+        ctx.progress(0.55, "final approach")
+        for _ in range(2):
+            state = ctx.state()
+            now = state.track(track.id)
+            # A track hidden by the gripper keeps the plan; one that moved is planned again.
+            if now is None or np.linalg.norm(now.p_base[:2] - track.p_base[:2]) <= MOVED_M:
+                break
+            self.replans += 1
+            track, found = self.plan_for(state, track.id)
+            self.go_to(state, track, found)
+        assert self.candidate is not None
+        candidate = self.candidate
+        self.steps("approach", candidate.approach)
+        self.stages.append("approach")
+
+        ctx.progress(0.7, "closing the gripper")
+        ctx.close_gripper()
+        empty = model.finger_limits[0]
+        if self.finger() < empty + GRASP_MARGIN_M:
+            ctx.open_gripper()
+            # Back out the way the gripper came in (checked free), then up.
+            self.steps("back off", (*tuple(reversed(candidate.approach[:-1])), candidate.pregrasp))
+            self.steps("up", (*tuple(reversed(candidate.descend[:-1])), candidate.hover))
+            raise _Abort("the gripper closed on nothing: the bottle was not between the fingers")
+        self.stages.append("closed")
+
+        ctx.progress(0.8, f"lifting {100 * cfg.lift:.0f} cm")
+        self.steps("lift", candidate.lift)
+        self.stages.append("lifted")
+        finger = self.finger()
+        if finger < empty + GRASP_MARGIN_M:
+            raise _Abort("the bottle slipped out during the lift")
+        self.stages.append("checked")
+        ctx.progress(1.0, "holding the bottle")
+        return self.result(True, "bottle grasped and lifted", finger)
+
+
+#: A candidate whose hover point no joint path reaches gives way to the next, this many times.
+MAX_PATH_TRIES = 4
+#: A bottle's score loses this many metres per metre of its track's position uncertainty.
+CERTAINTY_WEIGHT = 2.0
+#: Before refusing, the collision-aware grab plans this many times, this far apart (seconds).
+PLAN_LOOKS = 3
+PLAN_LOOK_INTERVAL_S = 1.0
+
+
 class _Abort(Exception):  # noqa: N818 - control flow inside this module
     """Ends the grab with a reason (becomes GrabResult.ok = False)."""
 
 
 def grab(ctx: TaskContext, track_id: int | None = None) -> GrabResult:
-    """Grasp a bottle and lift it (see the module docstring); ``track_id`` picks the bottle."""
+    """Grasp a bottle and lift it (see the module docstring); ``track_id`` picks the bottle.
+    ``grab.planner`` chooses the collision-aware grasp (default) or the paper's."""
     ctx.require_aim()
-    job = _Grab(ctx, ctx.config.grab, track_id)
+    cfg = ctx.config.grab
+    job = (
+        _PlannedGrab(ctx, cfg, track_id)
+        if cfg.planner == "collision"
+        else _Grab(ctx, cfg, track_id)
+    )
     try:
         return job.run()
     except _Abort as exc:

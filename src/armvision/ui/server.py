@@ -615,6 +615,7 @@ def state_payload(
             "health": {name: h.to_dict() for name, h in state.health.items()},
             "detectors": dict(state.detectors),
             "tracks": tracks,
+            "planning_scene": state.planning_scene.to_dict(),
             "tags": [
                 {"id": tag.id, "distance_m": round(float(np.linalg.norm(tag.T_cam_tag[:3, 3])), 3)}
                 for tag in state.tags
