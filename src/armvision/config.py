@@ -121,6 +121,11 @@ class RobotConfig:
     gripper_pressure: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
     group_name: Text = "arm"
     gripper_name: Text = "gripper"
+    # "interbotix": through the Interbotix ROS 2 stack; "dynamixel": the servos directly over
+    # the U2D2 on ``port`` at ``baud_rate`` (robot/dynamixel.py, no ROS).
+    backend: Literal["interbotix", "dynamixel"] = "interbotix"
+    port: Text = "/dev/ttyDXL"
+    baud_rate: Annotated[Int, Field(gt=0)] = 1_000_000
 
     @field_validator("accel_time")
     @classmethod
