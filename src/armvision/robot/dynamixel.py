@@ -23,6 +23,7 @@ moving time and Profile_Acceleration = accel time in ms, checked first by :class
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import glob
 import importlib
@@ -76,6 +77,19 @@ def find_u2d2_ports() -> list[str]:
     found += sorted(glob.glob("/dev/serial/by-id/*FTDI*") + glob.glob("/dev/serial/by-id/*U2D2*"))
     found += sorted(glob.glob("/dev/ttyUSB*"))
     return list(dict.fromkeys(found))
+
+
+def _port_handler(sdk: Any, name: str, latency_ms: float) -> Any:
+    """The SDK's PortHandler with its packet timeout computed from ``latency_ms`` instead of
+    the SDK's fixed 16 ms (the U2D2's FTDI latency timer; an emulated bus on a loaded machine
+    needs more)."""
+
+    class Port(sdk.PortHandler):
+        def setPacketTimeout(self, packet_length: int) -> None:
+            self.packet_start_time = self.getCurrentTime()
+            self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
+
+    return Port(name)
 
 
 def _sdk() -> Any:
@@ -133,8 +147,12 @@ class DynamixelBus:
         port: str = DEFAULT_PORT,
         baud_rate: int = xs.VX300S_BAUD_RATE,
         servos: tuple[xs.BusServo, ...] = xs.VX300S_BUS,
+        latency_ms: float = 16.0,
+        retries: int = 2,
     ) -> None:
         self.port_name = port
+        self.latency_ms = float(latency_ms)
+        self.retries = int(retries)
         self.baud_rate = int(baud_rate)
         self.servos = servos
         self.by_id = {s.id: s for s in servos}
@@ -155,7 +173,7 @@ class DynamixelBus:
             )
         if not os.access(self.port_name, os.R_OK | os.W_OK):
             raise HardwareError(f"no permission to open {self.port_name}: {UDEV_HINT}")
-        self.port = self.sdk.PortHandler(self.port_name)
+        self.port = _port_handler(self.sdk, self.port_name, self.latency_ms)
         try:
             ok = self.port.setBaudRate(self.baud_rate)
         except Exception as exc:  # pyserial's SerialException wraps the OSError
@@ -201,23 +219,45 @@ class DynamixelBus:
             return "corrupt status packet (CRC error): noise on the bus? check the cables"
         return str(self.ph.getTxRxResult(result))
 
-    def ping(self, dxl_id: int) -> tuple[int | None, int]:
+    def _retry(self, fn: Any, *args: Any, retries: int | None = None) -> Any:
+        """``fn(port, *args)`` again (up to ``retries`` times) while the line fails: a lost
+        packet is retried, a servo's refusal (status error) is not."""
+        for _ in range((self.retries if retries is None else retries) + 1):
+            with self.lock:
+                out = fn(self.port, *args)
+            result = out[1] if len(out) == 3 else out[0]
+            if result == self.sdk.COMM_SUCCESS:
+                break
+        return out
+
+    def ping(self, dxl_id: int, retries: int | None = None) -> tuple[int | None, int]:
         """(model number or None if it did not answer, SDK result)."""
-        with self.lock:
-            model, result, _ = self.ph.ping(self.port, dxl_id)
+        model, result, _ = self._retry(self.ph.ping, dxl_id, retries=retries)
         return (int(model) if result == self.sdk.COMM_SUCCESS else None), result
+
+    def silent_ids(self, ids: list[int]) -> list[int]:
+        """Which of ``ids`` do not answer a ping on time with their own model number, asked
+        once the line has gone quiet (a late answer to an earlier request, matched by ID only,
+        would parse as a wrong model number)."""
+        with self.lock:
+            time.sleep(2.0 * self.latency_ms / 1000.0)
+            self.port.clearPort()
+            pings = {i: self.ping(i, retries=0)[0] for i in ids}
+        return [
+            i
+            for i, model in pings.items()
+            if i in self.by_id and model != self.by_id[i].model.number
+        ]
 
     def read(self, dxl_id: int, reg: tuple[int, int]) -> int:
         addr, size = reg
-        with self.lock:
-            data, result, error = self.ph.readTxRx(self.port, dxl_id, addr, size)
+        data, result, error = self._retry(self.ph.readTxRx, dxl_id, addr, size)
         self._check(dxl_id, f"read of address {addr}", result, error)
         return int.from_bytes(bytes(data), "little", signed=addr in xs.SIGNED)
 
     def write(self, dxl_id: int, reg: tuple[int, int], value: int) -> None:
         addr, size = reg
-        with self.lock:
-            result, error = self.ph.writeTxRx(self.port, dxl_id, addr, size, _to_bytes(value, size))
+        result, error = self._retry(self.ph.writeTxRx, dxl_id, addr, size, _to_bytes(value, size))
         self._check(dxl_id, f"write of {value} at address {addr}", result, error)
 
     def sync_write(self, addr: int, size: int, rows: dict[int, list[int]]) -> None:
@@ -262,9 +302,12 @@ class DynamixelBus:
 
     def check_servos(self) -> None:
         """Every servo answers with the right model number, or HardwareError saying which."""
-        answered = {s.id: self.ping(s.id)[0] for s in self.servos}
+        answered = {s.id: self.ping(s.id, retries=0)[0] for s in self.servos}
         if all(m is None for m in answered.values()):
             self._diagnose_silence()
+        for i, m in answered.items():
+            if m is None:  # one lost packet is not a missing servo
+                answered[i] = self.ping(i)[0]
         missing = [i for i, m in answered.items() if m is None]
         if missing:
             names = ", ".join(self.name(i) for i in missing)
@@ -284,19 +327,20 @@ class DynamixelBus:
 
     def _diagnose_silence(self) -> None:
         ids = [s.id for s in self.servos]
+        configured = self.baud_rate
         for baud in BAUD_CANDIDATES:
-            if baud == self.baud_rate:
+            if baud == configured:
                 continue
             self.set_baud_rate(baud)
-            heard = [i for i in ids if self.ping(i)[0] is not None]
+            heard = [i for i in ids[:3] if self.ping(i, retries=0)[0] is not None]
             if heard:
-                configured = self.baud_rate
                 self.set_baud_rate(configured)
                 raise HardwareError(
                     f"no servo answers at robot.baud_rate = {configured} bps but IDs {heard} "
                     f"answer at {baud} bps: set robot.baud_rate = {baud}, or set the servos' "
                     "Baud_Rate to 3 (1 Mbps, as Interbotix does) with Dynamixel Wizard"
                 )
+        self.set_baud_rate(configured)
         raise HardwareError(
             f"no servo answers on {self.port_name} at any baud rate: is the arm's 12 V supply "
             "on and the U2D2's 3-pin cable plugged into the arm?"
@@ -376,14 +420,16 @@ class DynamixelArm(ArmBase):
         accel_time: float = DEFAULT_ACCEL_TIME_S,
         gripper_pressure: float = 0.5,
         state_rate_hz: float = 200.0,
+        latency_ms: float = 16.0,
     ) -> None:
         super().__init__(model, moving_time, accel_time)
-        self.bus = DynamixelBus(port, baud_rate)
+        self.bus = DynamixelBus(port, baud_rate, latency_ms=latency_ms)
         self.fault: DynamixelFault | None = None
         self.state_rate_hz = float(state_rate_hz)
         self.reads = 0  # successful state reads, for the benchmark
         self._state: JointState | None = None
-        self._failures: dict[int, int] = {}
+        self._bad_reads = 0  # state reads in a row that failed
+        self._ticks: dict[int, int] = {}  # latest Present_Position each servo answered
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._joint_servos = [
@@ -465,6 +511,8 @@ class DynamixelArm(ArmBase):
     def _read_state(self) -> JointState:
         addr, size = xs.STATE_BLOCK
         data, errors, failed = self.bus.sync_read(self._ids, addr, size)
+        for i, d in data.items():  # what Stop holds: each servo's latest answer
+            self._ticks[i] = int.from_bytes(d[6:10], "little", signed=True)
         if failed:
             raise _ReadFailedError(failed)
         for dxl_id, error in errors.items():
@@ -508,18 +556,9 @@ class DynamixelArm(ArmBase):
         try:
             state = self._read_state()
         except _ReadFailedError as failure:
-            for i in self._ids:
-                self._failures[i] = self._failures.get(i, 0) + 1 if i in failure.failed else 0
-            lost = [i for i in failure.failed if self._failures[i] >= MAX_READ_FAILURES]
-            if lost:
-                i = lost[0]
-                self._on_fault(
-                    i,
-                    f"lost contact: {self.bus._comm_text(failure.failed[i])} "
-                    f"({MAX_READ_FAILURES} state reads in a row failed"
-                    + (f"; also IDs {lost[1:]}" if len(lost) > 1 else "")
-                    + ")",
-                )
+            self._bad_reads += 1
+            if self._bad_reads >= MAX_READ_FAILURES:
+                self._lost_contact(failure.failed)
             return None
         except _AlertError as alert:
             self._hardware_fault(alert.id)
@@ -527,10 +566,30 @@ class DynamixelArm(ArmBase):
         except HardwareError as exc:
             log.warning("dynamixel state read failed: %s", exc)
             return None
-        self._failures.clear()
+        self._bad_reads = 0
         self._state = state
         self.reads += 1
         return state
+
+    def _lost_contact(self, failed: dict[int, int]) -> None:
+        """Name the servos that stopped answering. The SDK reads a sync read's answers in
+        order and drops what it skips, so one silent, late or garbled servo spoils the answers
+        after it: the culprits are the servos that fail a ping of their own."""
+        culprits = self.bus.silent_ids(self._ids)
+        named = culprits or list(failed)
+        i = named[0]
+        result = failed.get(i, self.sdk_timeout)
+        also = f"; also {', '.join(self.bus.name(j) for j in named[1:])}" if named[1:] else ""
+        self._on_fault(
+            i,
+            f"lost contact: {self.bus._comm_text(result)} ({MAX_READ_FAILURES} state reads in "
+            f"a row failed{also})",
+            stale=set(culprits),
+        )
+
+    @property
+    def sdk_timeout(self) -> int:
+        return int(self.bus.sdk.COMM_RX_TIMEOUT)
 
     def _hardware_fault(self, dxl_id: int) -> None:
         bits = self.bus.read(dxl_id, xs.HARDWARE_ERROR_STATUS)
@@ -543,30 +602,31 @@ class DynamixelArm(ArmBase):
             what += ": it shut its torque off; reduce the load (a heavy object, a collision)"
         self._on_fault(dxl_id, f"hardware error status 0x{bits:02x}, {what}")
 
-    def _on_fault(self, dxl_id: int, what: str) -> None:
-        """Stop: refuse every later command, hold every servo that answers where it is."""
+    def _on_fault(self, dxl_id: int, what: str, stale: set[int] | None = None) -> None:
+        """Stop: refuse every later command, hold every servo that answers where it is
+        (``stale``: servos not to ask, they hold their last known position)."""
         servo = self.bus.by_id[dxl_id]
         self.fault = DynamixelFault(servo.name, dxl_id, servo.joint, what)
         self.last_error = self.fault.message()
         log.error("%s", self.last_error)
         self._motion_end = -math.inf
         self._last_stream = None
-        self._hold_present()
+        self._hold_present(stale or set())
 
-    def _hold_present(self) -> None:
-        """Goal = present position on every master that answers (a held object stays held)."""
-        rows = {}
-        for s in self.bus.servos:
-            if s.is_shadow or s.joint == "gripper":
-                continue
-            try:
-                rows[s.id] = (
-                    _to_bytes(0, 4)
-                    + _to_bytes(STREAM_MS, 4)
-                    + _to_bytes(self.bus.read(s.id, xs.PRESENT_POSITION), 4)
-                )
-            except HardwareError:
-                continue  # it does not answer: nothing to hold it with
+    def _hold_present(self, stale: set[int]) -> None:
+        """Goal = the present position of every arm master (the gripper is left as it is, so a
+        held object stays held). Each is read afresh except the ``stale`` ones, which hold
+        their last state read's position: a late answer from one of them could pass for the
+        reply to a new read (the SDK matches answers by ID only)."""
+        for s in self._masters:
+            if s.id not in stale:
+                with contextlib.suppress(HardwareError):
+                    self._ticks[s.id] = self.bus.read(s.id, xs.PRESENT_POSITION)
+        rows = {
+            s.id: _to_bytes(0, 4) + _to_bytes(STREAM_MS, 4) + _to_bytes(self._ticks[s.id], 4)
+            for s in self._masters
+            if s.id in self._ticks
+        }
         if rows:
             self.bus.sync_write(xs.PROFILE_ACCELERATION[0], 12, rows)
 
@@ -585,7 +645,7 @@ class DynamixelArm(ArmBase):
             raise ValueError(f"no servo {name!r}; servos: {[s.name for s in self.bus.servos]}")
         self.bus.reboot(servo.id)
         time.sleep(0.3)  # the firmware restarts
-        self._failures.clear()
+        self._bad_reads = 0
         self.fault = None
         self.last_error = None
         if servo.joint == "gripper":
@@ -619,7 +679,7 @@ class DynamixelArm(ArmBase):
         self.bus.sync_write(xs.PROFILE_ACCELERATION[0], 12, self._profile_rows(q, STREAM_MS, 0))
 
     def _halt(self) -> None:
-        self._hold_present()
+        self._hold_present(set())
 
     def _wait(self, seconds: float) -> None:
         """Wait on the wall clock, ending early on a fault."""

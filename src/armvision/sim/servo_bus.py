@@ -352,10 +352,11 @@ class ServoBusEmulator:
         return theta
 
     def _start_profile(self, servo: EmulatedServo) -> None:
-        """A new Goal_Position: plan the servo's profile from where its last one is now."""
-        if servo.spec.is_shadow or servo.spec.joint == "gripper":
-            if servo.spec.joint == "gripper":
-                self._command_gripper(servo)
+        """A new Goal_Position: plan the servo's profile from where its last one is now. A
+        shadow plans it too (it got the same write), so it drives the joint on its own when its
+        master's torque is off."""
+        if servo.spec.joint == "gripper":
+            self._command_gripper(servo)
             return
         j = self._joint_index[servo.spec.joint]
         t = self.world.time
