@@ -423,17 +423,19 @@ class ServoBusEmulator:
     def _refresh_present(self) -> None:
         """Copy the simulation into every servo's Present_* registers (under self._lock)."""
         w = self.world
-        with w.lock:
-            d = w.data
-            q = d.qpos[w._qadr].copy()
-            qd = d.qvel[w._dofadr].copy()
-            # The model compensates gravity on the arm's links (gravcomp) instead of loading
-            # the actuators: on the real arm the motors hold that weight, so it is in the torque.
-            torque_on = np.array(self._torque[:6], dtype=float)
-            tau = (d.actuator_force[w.arm_actuators] + d.qfrc_gravcomp[w._dofadr]) * torque_on
-            finger = float(d.qpos[w._finger_qadr[0]])
-            finger_force = float(d.actuator_force[w.gripper_actuator])
-            tick_ms = int(d.time * 1000.0) % 32768
+        # No world lock: the realtime physics thread, when it runs behind, takes the lock back
+        # as soon as it lets it go, and a servo must answer within the host's packet timeout.
+        # The copies below are of one state, give or take the step being computed.
+        d = w.data
+        q = d.qpos[w._qadr].copy()
+        qd = d.qvel[w._dofadr].copy()
+        # The model compensates gravity on the arm's links (gravcomp) instead of loading
+        # the actuators: on the real arm the motors hold that weight, so it is in the torque.
+        torque_on = np.array(self._torque[:6], dtype=float)
+        tau = (d.actuator_force[w.arm_actuators] + d.qfrc_gravcomp[w._dofadr]) * torque_on
+        finger = float(d.qpos[w._finger_qadr[0]])
+        finger_force = float(d.actuator_force[w.gripper_actuator])
+        tick_ms = int(d.time * 1000.0) % 32768
         for servo in self.servos.values():
             spec = servo.spec
             servo.put(xs.PRESENT_POSITION, self._present_tick(servo, q, finger))
