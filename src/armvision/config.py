@@ -278,6 +278,9 @@ class SimConfig:
     min_objects: Annotated[Int, Field(ge=0, le=4)] = 1
     max_objects: Annotated[Int, Field(ge=0, le=4, validate_default=True)] = 4
     loose_tags: Annotated[Int, Field(ge=0, le=4)] = 0  # extra tags lying on the table
+    # The simulated arm: "sim" (SimArm on the MuJoCo servos) or "dynamixel-emulated" (the
+    # Dynamixel driver over a Protocol 2.0 bus emulator on a pty, backed by the same servos).
+    arm: Literal["sim", "dynamixel-emulated"] = "sim"
     depth_noise: Bool = True  # Intel's RMS model, quantisation, edge and range dropouts
     depth_min: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.28  # D435 minimum at 640x480, m
     # z16 in millimetres ends at 65.535 m; validate_default: checked against depth_min.

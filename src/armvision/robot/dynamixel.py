@@ -32,6 +32,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +45,7 @@ from armvision.robot.base import (
     DEFAULT_MOVING_TIME_S,
     ArmBase,
     Array,
+    Gripper,
     GripperBase,
     TrapezoidalTrajectory,
 )
@@ -421,8 +423,15 @@ class DynamixelArm(ArmBase):
         gripper_pressure: float = 0.5,
         state_rate_hz: float = 200.0,
         latency_ms: float = 16.0,
+        clock: Callable[[], float] | None = None,
+        sleep: Callable[[float], None] | None = None,
     ) -> None:
         super().__init__(model, moving_time, accel_time)
+        # The clock moves and waits are timed on, and how to wait: the wall clock by default; a
+        # lockstep simulation behind an emulated bus passes its own (its time moves only when
+        # someone waits).
+        self._clock = clock or time.monotonic
+        self._sleep = sleep or time.sleep
         self.bus = DynamixelBus(port, baud_rate, latency_ms=latency_ms)
         self.fault: DynamixelFault | None = None
         self.state_rate_hz = float(state_rate_hz)
@@ -437,7 +446,8 @@ class DynamixelArm(ArmBase):
         ]
         self._masters = [group[0] for group in self._joint_servos]
         self._ids = [s.id for s in self.bus.servos]
-        self.gripper: DynamixelGripper = DynamixelGripper(self, gripper_pressure)
+        self.dxl_gripper = DynamixelGripper(self, gripper_pressure)
+        self.gripper: Gripper = self.dxl_gripper
         self.bus.open()
         try:
             self.bus.check_servos()
@@ -447,8 +457,9 @@ class DynamixelArm(ArmBase):
         except BaseException:
             self.bus.close()
             raise
-        self._thread = threading.Thread(target=self._state_loop, name="dynamixel", daemon=True)
-        self._thread.start()
+        if self.state_rate_hz > 0.0:
+            self._thread = threading.Thread(target=self._state_loop, name="dynamixel", daemon=True)
+            self._thread.start()
 
     @classmethod
     def from_config(cls, robot: Any) -> DynamixelArm:
@@ -485,7 +496,7 @@ class DynamixelArm(ArmBase):
                 bus.write(s.id, xs.TORQUE_ENABLE, 0)  # EEPROM is locked while torque is on
                 bus.write(s.id, xs.DRIVE_MODE, drive)
                 bus.write(s.id, xs.OPERATING_MODE, mode)
-        self.gripper.configure()
+        self.dxl_gripper.configure()
 
     def torque_on(self) -> None:
         """Hold every servo where it is now (the goal is set to the present position first)."""
@@ -536,7 +547,7 @@ class DynamixelArm(ArmBase):
                 a = raw[s.id][0] * xs.CURRENT_A_PER_LSB
                 amps[j] += a
                 tau[j] += a * s.model.torque_per_amp
-        g = self.gripper.servo.id
+        g = self.dxl_gripper.servo.id
         finger = xs.finger_from_motor_angle(xs.tick_to_rad(raw[g][2]))
         return JointState(
             time.monotonic(), q, qd, tau, amps, finger, raw[g][0] * xs.CURRENT_A_PER_LSB
@@ -631,7 +642,10 @@ class DynamixelArm(ArmBase):
             self.bus.sync_write(xs.PROFILE_ACCELERATION[0], 12, rows)
 
     def joint_state(self) -> JointState:
-        """The latest sync read (at most 1 / ``state_rate_hz`` old)."""
+        """The latest sync read (at most 1 / ``state_rate_hz`` old; with ``state_rate_hz`` 0
+        there is no reading thread and this reads now)."""
+        if self._thread is None and self.fault is None:
+            self.poll()
         state = self._state
         if state is None:  # pragma: no cover - set before the thread starts
             raise HardwareError("no joint state read yet")
@@ -681,11 +695,17 @@ class DynamixelArm(ArmBase):
     def _halt(self) -> None:
         self._hold_present(set())
 
+    def _now(self) -> float:
+        return self._clock()
+
     def _wait(self, seconds: float) -> None:
-        """Wait on the wall clock, ending early on a fault."""
-        end = time.monotonic() + seconds
-        while self.fault is None and (left := end - time.monotonic()) > 0.0:
-            time.sleep(min(left, 0.01))
+        """Wait ``seconds`` on the arm's clock, ending early on a fault (found by the reading
+        thread, or by a read every 20 ms without one)."""
+        end = self._clock() + seconds
+        while self.fault is None and (left := end - self._clock()) > 0.0:
+            self._sleep(min(left, 0.01 if self._thread is not None else 0.02))
+            if self._thread is None:
+                self.poll()
 
     # ---------------------------------------------------------------- commands refuse on a fault
 

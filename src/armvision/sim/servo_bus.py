@@ -31,7 +31,9 @@ alert bit in every status), :meth:`set_input_voltage` (below Min_Voltage_Limit s
 voltage error). The host's baud rate is read from the pty's termios: a host at another baud
 than the bus's gets no answer, as on a real RS-485 line.
 
-Physics runs on the wall clock: give it a ``SimWorld(mode="realtime")``.
+The servos run their profiles on the simulation's clock. With a ``SimWorld(mode="realtime")``
+that is the wall clock; in lockstep mode the joints move only while someone advances the world
+(the driver's ``sleep`` hook does, see :func:`armvision.bench.system.sim_system`).
 """
 
 from __future__ import annotations
@@ -49,7 +51,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from armvision.errors import SimulationError
 from armvision.robot import xseries as xs
 from armvision.sim.model import GRIPPER_MAX_FORCE_N
 from armvision.sim.world import SimWorld
@@ -218,11 +219,6 @@ class ServoBusEmulator:
     """
 
     def __init__(self, world: SimWorld, baud_rate: int = xs.VX300S_BAUD_RATE) -> None:
-        if world.mode != "realtime":
-            raise SimulationError(
-                "the servo-bus emulator needs SimWorld(mode='realtime'): a host on a serial "
-                "port runs on the wall clock"
-            )
         self.world = world
         self.baud_rate = baud_rate
         self.servos = {
