@@ -24,7 +24,7 @@ from armvision.sim.servo_bus import ServoBusEmulator
 from armvision.sim.world import SimWorld
 
 sdk = pytest.importorskip("dynamixel_sdk")
-from armvision.robot.dynamixel import DynamixelArm  # noqa: E402 - after the importorskip
+from armvision.robot.dynamixel import DynamixelArm, scan  # noqa: E402 - after the importorskip
 
 #: The bus's packet latency: the emulator shares two loaded cores with the simulation and the
 #: tests, so it may answer later than a U2D2's 16 ms.
@@ -431,3 +431,13 @@ def test_a_wrong_model_number_is_named(bench: Bench) -> None:
         HardwareError, match=r"wrist_rotate \(ID 8\) is model number 1120, expected XM430-W350"
     ):
         bench.connect()
+
+
+def test_info_scan_pings_the_arm_s_ids_on_each_port(bench: Bench) -> None:
+    ok, detail = scan([bench.bus.port], latency_ms=LATENCY_MS)
+    assert (
+        ok and f"{bench.bus.port} at 1000000 bps: IDs [1, 2, 3, 4, 5, 6, 7, 8, 9] answer" in detail
+    )
+    bench.bus.silence(7)
+    ok, detail = scan([bench.bus.port], latency_ms=LATENCY_MS)
+    assert not ok and "IDs [7] do not" in detail

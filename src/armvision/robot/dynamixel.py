@@ -27,6 +27,7 @@ import contextlib
 import errno
 import glob
 import importlib
+import importlib.util
 import logging
 import math
 import os
@@ -79,6 +80,44 @@ def find_u2d2_ports() -> list[str]:
     found += sorted(glob.glob("/dev/serial/by-id/*FTDI*") + glob.glob("/dev/serial/by-id/*U2D2*"))
     found += sorted(glob.glob("/dev/ttyUSB*"))
     return list(dict.fromkeys(found))
+
+
+def scan(
+    ports: list[str] | None = None,
+    baud_rate: int = xs.VX300S_BAUD_RATE,
+    servos: tuple[xs.BusServo, ...] = xs.VX300S_BUS,
+    latency_ms: float = 16.0,
+) -> tuple[bool, str]:
+    """``armvision info``: the U2D2 ports found and which of the arm's IDs answer on each
+    (with their model numbers checked). (usable, detail)."""
+    if importlib.util.find_spec("dynamixel_sdk") is None:
+        return False, "dynamixel-sdk not installed: `pip install 'armvision[dynamixel]'`"
+    ports = find_u2d2_ports() if ports is None else ports
+    if not ports:
+        return False, "no U2D2 found (/dev/ttyDXL, /dev/serial/by-id/*FTDI*, /dev/ttyUSB*)"
+    found, ok = [], False
+    for port in ports:
+        bus = DynamixelBus(port, baud_rate, servos, latency_ms=latency_ms, retries=0)
+        try:
+            bus.open()
+        except HardwareError as exc:
+            found.append(f"{port}: {exc}")
+            continue
+        try:
+            models = {s.id: bus.ping(s.id)[0] for s in servos}
+        finally:
+            bus.close()
+        answer = [i for i, m in models.items() if m is not None]
+        wrong = [bus.name(s.id) for s in servos if models[s.id] not in (None, s.model.number)]
+        silent = [i for i, m in models.items() if m is None]
+        text = f"{port} at {baud_rate} bps: IDs {answer or 'none'} answer"
+        if silent:
+            text += f", IDs {silent} do not"
+        if wrong:
+            text += f"; wrong model: {', '.join(wrong)}"
+        ok = ok or (not silent and not wrong)
+        found.append(text)
+    return ok, "; ".join(found)
 
 
 def _port_handler(sdk: Any, name: str, latency_ms: float) -> Any:
