@@ -441,3 +441,34 @@ def test_info_scan_pings_the_arm_s_ids_on_each_port(bench: Bench) -> None:
     bench.bus.silence(7)
     ok, detail = scan([bench.bus.port], latency_ms=LATENCY_MS)
     assert not ok and "IDs [7] do not" in detail
+
+
+def test_sim_arm_dynamixel_emulated_runs_lockstep_on_the_simulation_clock() -> None:
+    """``sim.arm = "dynamixel-emulated"``: the system's arm is the driver over the emulator; in
+    lockstep a blocking move advances the world by its moving time and reaches the target."""
+    from armvision.bench.system import sim_system, sim_world
+
+    config = _empty()
+    config = dataclasses.replace(
+        config, sim=dataclasses.replace(config.sim, arm="dynamixel-emulated")
+    )
+    with sim_system(config, 0) as system:
+        arm, world = system.arm, sim_world(system)
+        assert isinstance(arm, DynamixelArm) and system.lockstep
+        t0 = world.time
+        q = np.array([0.3, -0.2, 0.4, 0.0, 0.5, 0.2])
+        assert arm.set_joint_positions(q, moving_time=1.0)
+        assert world.time - t0 == pytest.approx(1.0, abs=0.03)
+        assert np.abs(world.joint_positions() - q).max() < REACH_RAD
+        assert np.abs(arm.get_joint_positions() - q).max() < REACH_RAD
+
+
+def test_the_cli_arm_option_sets_sim_arm() -> None:
+    from armvision.cli.main import build_parser, overrides
+
+    args = build_parser().parse_args(["eval", "grab", "--arm", "dynamixel-emulated"])
+    assert "sim.arm=dynamixel-emulated" in overrides(args)
+    args = build_parser().parse_args(["grab", "--arm", "dynamixel-emulated"])
+    assert "sim.arm=dynamixel-emulated" in overrides(args)
+    args = build_parser().parse_args(["demo", "--arm", "dynamixel-emulated"])
+    assert "sim.arm=dynamixel-emulated" in overrides(args)
