@@ -472,3 +472,11 @@ def test_the_cli_arm_option_sets_sim_arm() -> None:
     assert "sim.arm=dynamixel-emulated" in overrides(args)
     args = build_parser().parse_args(["demo", "--arm", "dynamixel-emulated"])
     assert "sim.arm=dynamixel-emulated" in overrides(args)
+
+
+def test_a_servo_already_in_a_hardware_error_is_named_at_connection(bench: Bench) -> None:
+    bench.bus.set_hardware_error(7, 0x04)
+    with pytest.raises(
+        HardwareError, match=r"wrist_angle \(ID 7\) reports hardware error status 0x04, overheating"
+    ):
+        bench.connect()

@@ -205,6 +205,11 @@ class DynamixelBus:
     # ---------------------------------------------------------------- port
 
     def open(self) -> None:
+        if not os.path.exists(self.port_name) and self.port_name == DEFAULT_PORT:
+            found = find_u2d2_ports()
+            if found:  # no Interbotix udev rule: the first U2D2 there is
+                log.warning("no %s; using %s (set robot.port to choose)", DEFAULT_PORT, found[0])
+                self.port_name = found[0]
         if not os.path.exists(self.port_name):
             found = [p for p in find_u2d2_ports() if p != self.port_name]
             hint = f"found {', '.join(found)}: set robot.port" if found else "no U2D2 port found"
@@ -491,7 +496,7 @@ class DynamixelArm(ArmBase):
         try:
             self.bus.check_servos()
             self._configure()
-            self._state = self._read_state()
+            self._state = self._first_state()
             self.torque_on()
         except BaseException:
             self.bus.close()
@@ -591,6 +596,21 @@ class DynamixelArm(ArmBase):
         return JointState(
             time.monotonic(), q, qd, tau, amps, finger, raw[g][0] * xs.CURRENT_A_PER_LSB
         )
+
+    def _first_state(self) -> JointState:
+        """The state read at connection, a servo already in a hardware error as HardwareError."""
+        try:
+            return self._read_state()
+        except _AlertError as alert:
+            bits = self.bus.read(alert.id, xs.HARDWARE_ERROR_STATUS)
+            raise HardwareError(
+                f"{self.bus.name(alert.id)} reports hardware error status 0x{bits:02x}, "
+                f"{xs.describe_hardware_error(bits)}: fix the cause and reboot it (power-cycle "
+                "the arm, or DynamixelBus.reboot) before connecting"
+            ) from None
+        except _ReadFailedError as failure:
+            names = ", ".join(self.bus.name(i) for i in failure.failed)
+            raise HardwareError(f"the first state read failed for {names}") from None
 
     def _state_loop(self) -> None:
         period = 1.0 / self.state_rate_hz
