@@ -34,7 +34,7 @@ def test_info_reports_every_backend_with_a_reason(tmp_path):
 
     assert report["version"] == __version__
     backends = {b["name"]: b for b in report["backends"]}
-    assert set(backends) == {"mujoco", "realsense", "interbotix"}
+    assert set(backends) == {"mujoco", "realsense", "interbotix", "dynamixel"}
     for backend in backends.values():
         assert backend["detail"]  # a one-line reason either way
     # make setup installs MuJoCo and the EGL libraries, so rendering must work.

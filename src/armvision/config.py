@@ -121,6 +121,11 @@ class RobotConfig:
     gripper_pressure: Annotated[Float, Field(ge=0.0, le=1.0)] = 0.5
     group_name: Text = "arm"
     gripper_name: Text = "gripper"
+    # "interbotix": through the Interbotix ROS 2 stack; "dynamixel": the servos directly over
+    # the U2D2 on ``port`` at ``baud_rate`` (robot/dynamixel.py, no ROS).
+    backend: Literal["interbotix", "dynamixel"] = "interbotix"
+    port: Text = "/dev/ttyDXL"
+    baud_rate: Annotated[Int, Field(gt=0)] = 1_000_000
 
     @field_validator("accel_time")
     @classmethod
@@ -273,6 +278,9 @@ class SimConfig:
     min_objects: Annotated[Int, Field(ge=0, le=4)] = 1
     max_objects: Annotated[Int, Field(ge=0, le=4, validate_default=True)] = 4
     loose_tags: Annotated[Int, Field(ge=0, le=4)] = 0  # extra tags lying on the table
+    # The simulated arm: "sim" (SimArm on the MuJoCo servos) or "dynamixel-emulated" (the
+    # Dynamixel driver over a Protocol 2.0 bus emulator on a pty, backed by the same servos).
+    arm: Literal["sim", "dynamixel-emulated"] = "sim"
     depth_noise: Bool = True  # Intel's RMS model, quantisation, edge and range dropouts
     depth_min: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.28  # D435 minimum at 640x480, m
     # z16 in millimetres ends at 65.535 m; validate_default: checked against depth_min.

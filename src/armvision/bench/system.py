@@ -97,6 +97,39 @@ def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
     return CalibrationStatus("simulator truth", "none", None, np.asarray(T_base_cam, dtype=float))
 
 
+#: The emulated bus's packet latency: its servos share the machine's cores with everything else.
+EMULATED_BUS_LATENCY_MS = 100.0
+
+
+def _sim_arm(world: SimWorld, arm_seed: int | Sequence[int] | None) -> tuple[Arm, tuple]:
+    """``config.sim.arm``: SimArm, or the Dynamixel driver over the servo-bus emulator (the
+    emulator too, for the system to close). In lockstep the driver reads on demand and waits
+    by advancing the world, so runs stay repeatable."""
+    if world.config.sim.arm != "dynamixel-emulated":
+        return SimArm(world, seed=arm_seed), ()
+    from armvision.robot.dynamixel import DynamixelArm
+    from armvision.sim.servo_bus import ServoBusEmulator
+
+    bus = ServoBusEmulator(world).start()
+    robot = world.config.robot
+    lockstep = world.mode == "lockstep"
+    try:
+        arm = DynamixelArm(
+            bus.port,
+            moving_time=robot.moving_time,
+            accel_time=robot.accel_time,
+            gripper_pressure=robot.gripper_pressure,
+            latency_ms=EMULATED_BUS_LATENCY_MS,
+            state_rate_hz=0.0 if lockstep else 200.0,
+            clock=lambda: world.time,
+            sleep=world.advance if lockstep else None,
+        )
+    except BaseException:
+        bus.close()
+        raise
+    return arm, (bus,)
+
+
 def sim_system(
     config: Config,
     seed: int = 0,
@@ -115,7 +148,7 @@ def sim_system(
     The system owns the world, the arm and the camera.
     """
     world = SimWorld(config, seed, mode=mode, scene=scene)
-    arm = SimArm(world, seed=arm_seed)
+    arm, bus = _sim_arm(world, arm_seed)
     camera = SimCamera(world)
     if calibration is None:
         calibration = sim_truth_calibration(world.T_base_cam())
@@ -127,7 +160,7 @@ def sim_system(
         clock=lambda: world.time,
         lockstep=mode == "lockstep",
         world=world,
-        owns=(arm, world),
+        owns=(arm, *bus, world),
         **detectors,
     )
 

@@ -197,6 +197,16 @@ def _sim_calibration_path(path: str) -> Path:
     return p.with_name(f"{p.stem}-sim{p.suffix or '.json'}")
 
 
+def arm_option(parser: argparse.ArgumentParser) -> None:
+    """``--arm``: which simulated arm (``sim.arm``)."""
+    parser.add_argument(
+        "--arm",
+        choices=("sim", "dynamixel-emulated"),
+        help="simulation: SimArm (default) or the Dynamixel driver over the servo-bus emulator "
+        "(the same as --set sim.arm=...)",
+    )
+
+
 def _where(
     parser: argparse.ArgumentParser,
     task: bool = True,
@@ -211,6 +221,7 @@ def _where(
     parser.add_argument("--calibration", metavar="PATH", help=calibration_help)
     if not task:
         return
+    arm_option(parser)
     parser.add_argument(
         "--realtime",
         action="store_true",

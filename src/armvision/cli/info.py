@@ -124,6 +124,14 @@ def check_interbotix() -> BackendStatus:
     return BackendStatus("interbotix", usable, detail)
 
 
+def check_dynamixel(config: Config) -> BackendStatus:
+    """U2D2 ports and the arm's servo IDs 1-9 on them (the Dynamixel backend, no ROS)."""
+    from armvision.robot.dynamixel import scan
+
+    usable, detail = scan(baud_rate=config.robot.baud_rate)
+    return BackendStatus("dynamixel", usable, detail)
+
+
 def check_object_detector(config: Config) -> BackendStatus:
     """Which object detector the configuration chooses, and whether it can be built here."""
     from armvision.perception.factory import describe_detector
@@ -133,7 +141,7 @@ def check_object_detector(config: Config) -> BackendStatus:
 
 
 def cmd_info(args: argparse.Namespace, config: Config) -> int:
-    statuses = [check_mujoco(), check_realsense(), check_interbotix()]
+    statuses = [check_mujoco(), check_realsense(), check_interbotix(), check_dynamixel(config)]
     objects = check_object_detector(config)
     config_file = find_config_file(args.config)
     report = {

@@ -85,6 +85,8 @@ def overrides(args: argparse.Namespace) -> list[str]:
     out = list(args.overrides)
     if getattr(args, "profile", None) is not None:
         out.append(f"sim.profile={args.profile}")
+    if getattr(args, "arm", None) is not None:
+        out.append(f"sim.arm={args.arm}")
     return out
 
 

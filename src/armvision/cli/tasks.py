@@ -14,6 +14,7 @@ from armvision.cli.args import (
     _say,
     _sim_calibration_path,
     _where,
+    arm_option,
     out_dir,
     port,
     runs,
@@ -230,6 +231,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     demo.add_argument("--calibration", metavar="PATH", help="load this instead of calibrating")
     demo.add_argument("--json", action="store_true", help="the report as JSON")
     add_record_option(demo)
+    arm_option(demo)
     demo.set_defaults(func=cmd_demo)
 
     grab = sub.add_parser("grab", help="grasp a bottle and lift it")
@@ -281,6 +283,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
         help="calibrate once with the tag (default) or use the simulator's camera pose",
     )
     grab_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    arm_option(grab_eval)
     grab_eval.set_defaults(func=cmd_eval_grab)
 
     follow_eval = eval_sub.add_parser("follow", help="servo vs blocking tag following")

@@ -1,8 +1,8 @@
 """Building a :class:`~armvision.runtime.system.System` on the real arm, and the runtime's view of a
 calibration (:class:`~armvision.runtime.state.CalibrationStatus`) from a file or a fresh result.
 
-Hardware modules (pyrealsense2, interbotix) are imported only by :func:`real_system`; the
-simulated bench builds its systems in :mod:`armvision.bench.system`.
+Hardware modules (pyrealsense2, interbotix, dynamixel_sdk) are imported only by
+:func:`real_system`; the simulated bench builds its systems in :mod:`armvision.bench.system`.
 """
 
 from __future__ import annotations
@@ -97,7 +97,8 @@ def load_calibration(path: str | os.PathLike[str]) -> CalibrationStatus:
 def real_system(
     config: Config, calibration_path: str | os.PathLike[str], allow_uncalibrated: bool = False
 ) -> System:
-    """A System on the Interbotix arm and the RealSense camera (threads, wall clock).
+    """A System on the real arm (``robot.backend``: Interbotix's ROS 2 stack, or the Dynamixel
+    bus directly) and the RealSense camera (threads, wall clock).
 
     With no file at ``calibration_path`` it is an error, unless ``allow_uncalibrated`` (the UI,
     whose Calibrate makes one): then it runs :func:`uncalibrated`.
@@ -107,9 +108,17 @@ def real_system(
     else:
         calibration = load_calibration(calibration_path)
     from armvision.camera.realsense import RealSenseCamera
-    from armvision.robot.interbotix import InterbotixArm
+    from armvision.robot.base import Arm
 
-    arm = InterbotixArm.from_config(config.robot)
+    arm: Arm
+    if config.robot.backend == "dynamixel":
+        from armvision.robot.dynamixel import DynamixelArm
+
+        arm = DynamixelArm.from_config(config.robot)
+    else:
+        from armvision.robot.interbotix import InterbotixArm
+
+        arm = InterbotixArm.from_config(config.robot)
     camera = RealSenseCamera.from_config(config.camera)
     # RealSense frame timestamps are host-clock milliseconds since the epoch (global time).
     return System(config, arm, camera, calibration, clock=time.time, owns=(arm,))
