@@ -43,9 +43,29 @@ def test_a_lockstep_run_is_served_live_and_a_file_starts_and_stops_mid_run(tmp_p
     def client() -> None:
         with connect(live.url(), subprotocols=["foxglove.sdk.v1"]) as ws:
             subscriptions: dict[int, dict] = {}
+            # A subscription sent right after the advertisement can reach the server before
+            # it knows the channel ("unknown channel", seen on a loaded machine), as a viewer
+            # clicking a topic would not: subscribe a quarter second after, and again for a
+            # channel the server says it does not know.
+            pending: list[tuple[float, dict]] = []
+
+            def subscribe_due() -> None:
+                due = [ch for t, ch in pending if time.monotonic() - t >= 0.25]
+                if not due:
+                    return
+                pending[:] = [(t, ch) for t, ch in pending if time.monotonic() - t < 0.25]
+                new = []
+                for ch in due:
+                    sub_id = len(subscriptions) + 1
+                    subscriptions[sub_id] = ch
+                    new.append({"id": sub_id, "channelId": ch["id"]})
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+                subscribed.set()
+
             while not done.is_set():
+                subscribe_due()
                 try:
-                    message = ws.recv(timeout=0.2)
+                    message = ws.recv(timeout=0.05)
                 except TimeoutError:
                     continue
                 except ConnectionClosed:  # the server stopped with the run
@@ -53,14 +73,15 @@ def test_a_lockstep_run_is_served_live_and_a_file_starts_and_stops_mid_run(tmp_p
                 if isinstance(message, str):
                     data = json.loads(message)
                     if data.get("op") == "advertise":
-                        new = []
                         for ch in data["channels"]:
                             channels[ch["id"]] = ch
-                            sub_id = len(subscriptions) + 1
-                            subscriptions[sub_id] = ch
-                            new.append({"id": sub_id, "channelId": ch["id"]})
-                        ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
-                        subscribed.set()
+                            pending.append((time.monotonic(), ch))
+                    elif data.get("op") == "status" and "unknown channel" in data.get(
+                        "message", ""
+                    ):
+                        tail = data["message"].rsplit(":", 1)[-1].strip()
+                        if tail.isdigit() and int(tail) in channels:
+                            pending.append((time.monotonic(), channels[int(tail)]))
                     continue
                 opcode, sub_id, log_ns = struct.unpack_from("<BIQ", message)
                 if opcode == 1:
