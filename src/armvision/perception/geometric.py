@@ -851,7 +851,7 @@ class GeometricDetector:
         ``closed_top_min_points`` points on the far half (beyond 0.2 x the radius past the
         axis, seen from the camera), at least a fifth of them more than
         ``closed_top_tolerance`` below the rim (:meth:`_rim`): the inner far wall under the
-        rim, or the liquid (an empty cup seen from 35 degrees above shows 40 %). A can's or
+        rim, or the liquid (an empty cup of a cluttered scene showed 41 %). A can's or
         box's far half shows only its top, at rim height (1 % on PoseCNN's soup can)."""
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
         far = (uw - center) @ to_cam < -0.2 * radius
