@@ -272,6 +272,22 @@ class _Grab:
                 self.ctx.sleep(self.cfg.retry_delay_s)
         raise _Abort(f"{what}: {self.ctx.arm.last_error or 'the arm refused the move'}")
 
+    def wait_for_track(self, progress: float) -> None:
+        """Wait (within the task's time) for a confirmed track of the bottle to grab; abort
+        with what to check if none comes within ``grab.track_wait_s``."""
+        ctx, cfg = self.ctx, self.cfg
+        ctx.progress(progress, "waiting for a confirmed bottle track")
+        found = ctx.wait_until(
+            lambda: self.read_track() is not None,
+            min(cfg.track_wait_s, max(self.remaining(), 0.0)),
+        )
+        if not found:
+            which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
+            raise _Abort(
+                f"no confirmed track of {which} within {cfg.track_wait_s:.0f} s: is a bottle "
+                "in the camera's view and is object detection on?"
+            )
+
     def read_track(self) -> TrackState | None:
         state = self.ctx.state()
         if self.plan is None:
@@ -336,17 +352,7 @@ class _Grab:
         self.move("safe start pose", safe_start_pose(cfg.safe_pose, ctx.arm.model))
         self.stages.append("safe_start")
 
-        ctx.progress(0.25, "waiting for a confirmed bottle track")
-        found = ctx.wait_until(
-            lambda: self.read_track() is not None,
-            min(cfg.track_wait_s, max(self.remaining(), 0.0)),
-        )
-        if not found:
-            which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
-            raise _Abort(
-                f"no confirmed track of {which} within {cfg.track_wait_s:.0f} s: is a bottle "
-                "in the camera's view and is object detection on?"
-            )
+        self.wait_for_track(0.25)
         track = self.read_track()
         assert track is not None
         self.plan = plan_grasp(track, cfg)
@@ -532,17 +538,7 @@ class _PlannedGrab(_Grab):
 
     def run(self) -> GrabResult:
         ctx, cfg = self.ctx, self.cfg
-        ctx.progress(0.05, "waiting for a confirmed bottle track")
-        found_track = ctx.wait_until(
-            lambda: self.read_track() is not None,
-            min(cfg.track_wait_s, max(self.remaining(), 0.0)),
-        )
-        if not found_track:
-            which = "any bottle" if self.track_id is None else f"bottle track {self.track_id}"
-            raise _Abort(
-                f"no confirmed track of {which} within {cfg.track_wait_s:.0f} s: is a bottle "
-                "in the camera's view and is object detection on?"
-            )
+        self.wait_for_track(0.05)
         # Plan before anything moves: a refusal leaves the arm and gripper as they are. A young
         # track's size and place are still settling (a phantom may even be dropped), so a
         # refusal is made only after a few looks.
