@@ -252,23 +252,17 @@ def project(intr: Intrinsics, points: ArrayLike) -> Array:
     model "none" simply u = fx x/z + ppx. Points at or behind the camera (z <= 0) give NaN.
     Example: ``project(intr, [[0, 0, 1]])`` is ``[[ppx, ppy]]``.
     """
-    _check_model(intr)
     p = np.atleast_2d(np.asarray(points, dtype=float))
-    z = p[:, 2]
-    uv = np.empty((len(z), 2))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = distort(intr, p[:, 0] / z, p[:, 1] / z)
-        np.multiply(x, intr.fx, out=uv[:, 0])
-        np.multiply(y, intr.fy, out=uv[:, 1])
-    uv += (intr.ppx, intr.ppy)
-    uv[z <= 0.0] = np.nan
+    uv = np.empty((len(p), 2))
+    uv[:, 0], uv[:, 1] = project_xyz(intr, p[:, 0], p[:, 1], p[:, 2])
     return uv
 
 
 def project_xyz(intr: Intrinsics, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[Array, Array]:
     """Pixel coordinates (u, v) of camera-frame points given as coordinate arrays of any one
-    (broadcast) shape: :func:`project` without building an (N, 3) array, for dense grids of
-    points (the liquid meter's rectified strips). NaN where z <= 0."""
+    (broadcast) shape, NaN where z <= 0: :func:`project`'s formula, which it calls on its
+    columns; directly, dense grids of points (the liquid meter's rectified strips) need no
+    (N, 3) array."""
     z = np.asarray(z, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         xd, yd = distort(intr, np.asarray(x, dtype=float) / z, np.asarray(y, dtype=float) / z)

@@ -74,12 +74,7 @@ def cylinder_box(
     rims = np.concatenate(
         [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
     )
-    uv = project(intr, rims[rims[:, 2] > 1e-3])
-    if len(uv) == 0:
-        return (0.0, 0.0, 0.0, 0.0)
-    w, h = intr.width, intr.height
-    x0, y0, x1, y1 = np.clip(pixel_box(uv), 0, [w, h, w, h])
-    return (float(x0), float(y0), float(x1), float(y1))
+    return _image_box(intr, rims)
 
 
 def bottle_box(
@@ -91,7 +86,13 @@ def bottle_box(
     the whole cylinder's box where a bottle seen from above narrows to its cap, and the box
     the meter fits its model to."""
     outline = bottle_outline(foot_cam, axis_cam, radius, height, BOTTLE_BODY_FRACTION)
-    uv = project(intr, outline[outline[:, 2] > 1e-3])
+    return _image_box(intr, outline)
+
+
+def _image_box(intr: Intrinsics, points_cam: Array) -> tuple[float, float, float, float]:
+    """Pixel box of the camera-frame points in front of the camera, clipped to the image;
+    all zeros when none is."""
+    uv = project(intr, points_cam[points_cam[:, 2] > 1e-3])
     if len(uv) == 0:
         return (0.0, 0.0, 0.0, 0.0)
     w, h = intr.width, intr.height
