@@ -235,6 +235,15 @@ def test_a_broken_sample_or_method_is_a_calibration_error(tmp_path):
     assert "methods.svd.T_base_cam" in load_error(write(tmp_path, json.dumps(data)))
 
 
+def test_a_key_with_a_newline_is_named_on_one_line(tmp_path):
+    """Before: the raw key split the one-line error in two (found by Hypothesis)."""
+    data = valid_dict()
+    data["methods"]["svd\nx"] = {"T_base_cam": "not a matrix"}
+    message = load_error(write(tmp_path, json.dumps(data)))
+    assert "\n" not in message
+    assert "methods.svd\\nx" in message
+
+
 def test_deeply_nested_json_is_a_calibration_error(tmp_path):
     """Before: RecursionError from the JSON parser."""
     deep = '{"schema": "armvision.calibration", "version": 1, "x": ' + "[" * 100_000

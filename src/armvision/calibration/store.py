@@ -353,6 +353,8 @@ class _FieldError(Exception):
     """A field that is not what it should be (``name`` as in ``samples[2].T_cam_tag``)."""
 
     def __init__(self, name: str, problem: str) -> None:
+        # A key may hold a newline or a control character: show it escaped, on one line.
+        name = name if name.isprintable() else repr(name)[1:-1]
         super().__init__(f"{name} {problem}")
         self.name = name
         self.problem = problem
