@@ -41,8 +41,8 @@ arch-test arm64 >/dev/null || {
 if [ ! -s "$base" ]; then
     step "making the arm64 bookworm base system ($base) from $mirror"
     mkdir -p build
-    mmdebstrap --quiet --arch=arm64 --variant=minbase --include=python3,make,ca-certificates \
-        bookworm "$base.tmp" "$mirror"
+    mmdebstrap --quiet --format=tar --arch=arm64 --variant=minbase --include=python3,make,ca-certificates \
+        bookworm "$base.tmp" "$mirror"  # .tmp: the format is given, not guessed
     mv "$base.tmp" "$base"
 fi
 
