@@ -463,3 +463,48 @@ def test_config_rejects_bad_fusion_values():
         load_config(None, ["fusion.motion_model=jerky"])
     assert load_config(None, ["fusion.rate_hz=50"]).fusion.rate_hz == 50.0
     assert VX300S.dof == 6
+
+
+def test_the_tag_orientation_corrects_the_camera_only_from_face_on_sightings():
+    """A tag seen at a slant has its orientation degrees off (its position is not), so only
+    sightings within 40 deg of facing the camera may turn the camera correction: an oblique
+    sighting whose orientation is 0.5 deg wrong (within the gate) leaves the filter where the
+    true one does; a face-on one with the same error turns the correction."""
+    from armvision.fusion.drift import facing
+
+    def view_angle(T_cam_tag):
+        ray = T_cam_tag[:3, 3] / np.linalg.norm(T_cam_tag[:3, 3])
+        return math.degrees(math.acos(abs(T_cam_tag[:3, 2] @ ray)))
+
+    poses = {}
+    for wrist in np.linspace(-1.5, 1.5, 61):
+        for roll in np.linspace(-1.5, 1.5, 13):
+            q = np.array([0.1, -0.3, 0.4, roll, wrist, 0.0])
+            T_cam_tag = inv_T(T_BASE_CAM) @ fk(q, VX300S) @ T_EE_TAG
+            angle = view_angle(T_cam_tag)
+            if angle < 20 and "face-on" not in poses:
+                poses["face-on"] = (q, T_cam_tag)
+            if 55 < angle < 70 and "oblique" not in poses:
+                poses["oblique"] = (q, T_cam_tag)
+    assert set(poses) == {"face-on", "oblique"}
+    assert facing(poses["face-on"][1]) and not facing(poses["oblique"][1])
+    # Turned 0.5 deg about the line from the tag to the end effector: the end effector's point,
+    # and so the position measurement, stay the same; only the orientation is wrong.
+    lever = inv_T(T_EE_TAG)[:3, 3]
+    wrong = np.eye(4)
+    wrong[:3, :3] = Rotation.from_rotvec(
+        math.radians(0.5) * lever / np.linalg.norm(lever)
+    ).as_matrix()
+    turned = {}
+    for name, (q, T_cam_tag) in poses.items():
+        corrections = []
+        for seen in (T_cam_tag, T_cam_tag @ wrong):
+            ee = EEFilter(FusionConfig(), T_BASE_CAM, T_EE_TAG)
+            ee.update_encoders(0.0, q)
+            ee.update_encoders(0.01, q)
+            ee.update_camera(0.005, seen)
+            ee.update_encoders(0.02, q)
+            corrections.append(ee.estimate().camera_correction[:3])
+        turned[name] = float(np.linalg.norm(corrections[1] - corrections[0]))
+    assert turned["oblique"] < 1e-12, turned  # the same to rounding
+    assert turned["face-on"] > math.radians(0.01), turned

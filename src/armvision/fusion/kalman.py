@@ -75,6 +75,7 @@ from scipy.stats import chi2
 from armvision.camera.frames import depth_rms_error
 from armvision.config import FusionConfig
 from armvision.fusion import FusionError
+from armvision.fusion.drift import facing
 from armvision.geometry import inv_T, make_T, skew
 from armvision.robot.kinematics import VX300S, ArmModel, fk, point_jacobian
 
@@ -785,7 +786,7 @@ class EEFilter:
         measurements: list[Measurement | Callable[[], Measurement | None]] = [
             Measurement("camera", z, H, R_base_cam @ cov_cam @ R_base_cam.T)
         ]
-        if self.bias_model == "joint" and self.estimate_camera_pose:
+        if self.bias_model == "joint" and self.estimate_camera_pose and facing(T_cam_tag):
             # Built when applied, from the joint readings around t known by then (a camera
             # result usually arrives after the encoder readings that bracket its frame).
             measurements.append(
