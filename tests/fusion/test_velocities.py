@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from armvision.config import Config, FusionConfig
+from armvision.fusion import FusionError
 from armvision.fusion.kalman import EEFilter
 from armvision.fusion.loop import FusionLoop
 from armvision.geometry import make_T, rpy_to_R
@@ -67,6 +68,15 @@ def test_fusion_joint_velocities_off_ignores_them() -> None:
     assert np.array_equal(
         _velocity_errors(use=False, give=True), _velocity_errors(use=True, give=False)
     )
+
+
+def test_bad_joint_velocities_are_refused_with_what_was_wrong_and_nothing_fused() -> None:
+    f = EEFilter(FusionConfig(), T_BASE_CAM, T_EE_TAG, use_camera=False)
+    with pytest.raises(FusionError, match=r"joint velocities must have shape \(6,\), got \(5,\)"):
+        f.update_encoders(0.0, _q(0.0), np.zeros(5))
+    with pytest.raises(FusionError, match="joint velocities has non-finite values"):
+        f.update_encoders(0.0, _q(0.0), [math.nan] * 6)
+    assert f.time is None and f.joints_at(0.0) is None
 
 
 def test_the_loop_passes_the_arms_measured_velocities_to_the_filter() -> None:

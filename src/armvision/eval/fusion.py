@@ -17,7 +17,12 @@ readings and answer at every tick "where is the end effector now?":
 - ``paper``: :class:`~armvision.fusion.kalman.PaperKF`, the paper's 7-state filter, updated
   at each tick with the camera when a new tag pose came in, else with the encoders.
 
-RMSE is over every tick of the motion against the simulator's ``T_base_ee``. The raw errors of
+The arm is ``sim.arm``'s: SimArm (no measured velocities), or the Dynamixel driver over the
+servo-bus emulator (``--arm dynamixel-emulated``), whose Present_Velocity the filters fuse while
+``fusion.joint_velocities`` is on (the encoders-only filter too: it is the same filter with one
+source). RMSE is over every tick of the motion against the simulator's ``T_base_ee``; the
+velocity's RMSE (``velocity_rmse_mm_s``) against the true positions differenced a tick either
+side. The raw errors of
 each source (the camera's at its detection instants, the encoders' fk at every tick) are
 reported too, and so is the Cartesian random-walk variant of the filter
 (``encoder_bias = "cartesian"``, no camera states) for comparison.

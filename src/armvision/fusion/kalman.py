@@ -758,6 +758,8 @@ class EEFilter:
             raise FusionError("this filter was built without encoders (use_encoders=False)")
         t = as_time("t", t)
         q = as_array("joint positions", q, (self.model.dof,))
+        use_qd = qd is not None and self.config.joint_velocities
+        qd = as_array("joint velocities", qd, (self.model.dof,)) if use_qd else None
         self._remember_joints(t, q)
         T_base_ee, Jv, _ = point_jacobian(q, self.model)
         H = np.zeros((3, self.core.n))
@@ -770,8 +772,7 @@ class EEFilter:
         measurements: list[Measurement | Callable[[], Measurement | None]] = [
             Measurement("encoders", T_base_ee[:3, 3], H, R)
         ]
-        if qd is not None and self.config.joint_velocities:
-            qd = as_array("joint velocities", qd, (self.model.dof,))
+        if qd is not None:
             H_v = np.zeros((3, self.core.n))
             H_v[:, 3:6] = np.eye(3)
             R_v = encoder_covariance(Jv, self._velocity_var) + np.eye(3) * 1e-12
