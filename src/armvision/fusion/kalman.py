@@ -758,8 +758,9 @@ class EEFilter:
             raise FusionError("this filter was built without encoders (use_encoders=False)")
         t = as_time("t", t)
         q = as_array("joint positions", q, (self.model.dof,))
-        use_qd = qd is not None and self.config.joint_velocities
-        qd = as_array("joint velocities", qd, (self.model.dof,)) if use_qd else None
+        qd_measured = None
+        if qd is not None and self.config.joint_velocities:
+            qd_measured = as_array("joint velocities", qd, (self.model.dof,))
         self._remember_joints(t, q)
         T_base_ee, Jv, _ = point_jacobian(q, self.model)
         H = np.zeros((3, self.core.n))
@@ -772,11 +773,11 @@ class EEFilter:
         measurements: list[Measurement | Callable[[], Measurement | None]] = [
             Measurement("encoders", T_base_ee[:3, 3], H, R)
         ]
-        if qd is not None:
+        if qd_measured is not None:
             H_v = np.zeros((3, self.core.n))
             H_v[:, 3:6] = np.eye(3)
             R_v = encoder_covariance(Jv, self._velocity_var) + np.eye(3) * 1e-12
-            measurements.append(Measurement("joint velocities", Jv @ qd, H_v, R_v))
+            measurements.append(Measurement("joint velocities", Jv @ qd_measured, H_v, R_v))
         self._add(t, measurements)
 
     def update_camera(self, t: float, T_cam_tag: ArrayLike) -> None:
