@@ -431,6 +431,12 @@ class FusionConfig:
     ``max_rejections`` gated in a row from one source the filter restarts from that source.
     Measurements up to ``history_s`` older than the state are inserted and replayed.
 
+    With ``joint_velocities`` the end-effector filter also fuses the joint velocities the arm
+    measures, where its backend measures them (the Dynamixel driver's Present_Velocity; SimArm
+    and Interbotix give none), as the end effector's velocity Jv(q) qd, with
+    ``velocity_noise_deg_s`` per joint (1 sigma; Present_Velocity counts 0.229 rev/min = 1.37
+    deg/s).
+
     Sensor models: encoders ``encoder_noise_deg`` per reading and a fixed zero offset of up to
     ``encoder_bias_deg`` per joint, estimated as joint-space bias states (``encoder_bias =
     "joint"``), as a random-walk Cartesian offset (``"cartesian"``: prior
@@ -457,6 +463,8 @@ class FusionConfig:
     max_rejections: Annotated[Int, Field(ge=1, le=1000)] = 5
     history_s: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.5
     encoder_noise_deg: Annotated[Float, Field(gt=0.0, le=10.0)] = 0.1
+    joint_velocities: Bool = True
+    velocity_noise_deg_s: Annotated[Float, Field(gt=0.0, le=100.0)] = 2.0
     encoder_bias: Literal["joint", "cartesian", "none"] = "joint"
     encoder_bias_deg: Annotated[Float, Field(ge=0.0, le=10.0)] = 0.3
     cartesian_bias_sigma: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.003

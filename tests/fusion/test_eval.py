@@ -91,23 +91,31 @@ def test_perturbed_calibration_is_seeded_and_exactly_as_large_as_asked():
 def test_cli_prints_one_json_object_or_a_table(monkeypatch, capsys):
     calls = []
 
-    def fake(config, seed, waypoints):
-        calls.append((seed, waypoints))
+    def fake(config, seed, waypoints, objects):
+        calls.append((seed, waypoints, objects, config.sim.arm))
         summary = {f"ee_rmse_mm_{k}": 1.0 for k in ("fused", "camera", "encoders", "paper")}
         return {
-            "summary": {**summary, "object_rmse_mm": 2.0, "id_switches": 0},
+            "summary": {
+                **summary,
+                "ee_velocity_rmse_mm_s_fused": 9.0,
+                "object_rmse_mm": 2.0,
+                "id_switches": 0,
+            },
             "calibration": {
                 "camera_position_error_mm": 2.0,
                 "camera_rotation_error_deg": 0.2,
                 "source": "test",
             },
-            "ee": {"seconds": 14.0},
+            "ee": {"seconds": 14.0, "arm": config.sim.arm, "joint_velocities_fused": False},
         }
 
     monkeypatch.setattr(eval_fusion, "evaluate_fusion", fake)
     assert cli.main(["eval", "fusion", "--seed", "3", "--waypoints", "4", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["summary"]["id_switches"] == 0
-    assert calls == [(3, 4)]
+    assert calls == [(3, 4, True, "sim")]
+    assert cli.main(["eval", "fusion", "--ee-only", "--arm", "dynamixel-emulated"]) == 0
+    assert calls[-1] == (0, 10, False, "dynamixel-emulated")
     assert cli.main(["eval", "fusion"]) == 0
     out = capsys.readouterr().out
-    assert "ee_rmse_mm_fused" in out and "paper" in out and calls[-1] == (0, 10)
+    assert "velocity RMSE" in out and "arm sim" in out
+    assert "ee_rmse_mm_fused" in out and "paper" in out and calls[-1] == (0, 10, True, "sim")

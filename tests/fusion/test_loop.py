@@ -44,6 +44,9 @@ class FakeArm:
             raise RuntimeError("servo bus timeout")
         return self.q_true(self.clock())
 
+    def get_joint_velocities(self) -> None:
+        return None  # like SimArm and Interbotix: positions only
+
 
 class Detection:
     """What the loop reads from a perception Detection."""

@@ -11,9 +11,19 @@ import pytest
 from armvision.bench.system import sim_system
 from armvision.config import Config, GrabConfig
 from armvision.fusion.tracker import TrackState
+from armvision.geometry import make_T
+from armvision.robot.base import GripperBase
 from armvision.robot.kinematics import VX300S, fk, ik
+from armvision.runtime.context import TaskContext
 from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
-from armvision.tasks.grab import GRASP_MARGIN_M, corridor_clear, grab, plan_grasp, safe_start_pose
+from armvision.tasks.grab import (
+    GRASP_MARGIN_M,
+    corridor_clear,
+    grab,
+    holding,
+    plan_grasp,
+    safe_start_pose,
+)
 
 
 def _track(track_id: int, p, height: float = 0.2, radius: float = 0.03) -> TrackState:
@@ -170,3 +180,102 @@ def test_a_bottle_blocked_all_round_is_refused_and_nothing_moves() -> None:
         assert system.world.finger_position() == pytest.approx(finger0, abs=1e-3)
         for o in system.world.objects():
             assert np.linalg.norm(o.T_base_obj[:3, 3] - start[o.spec.name]) < 1e-3
+
+
+# --------------------------------------------------------------------------- the grasp check
+
+
+class _Gripper(GripperBase):
+    def __init__(self, finger: float, confirmed: bool | None) -> None:
+        self.finger, self.confirmed = finger, confirmed
+
+    def open(self, delay: float | None = None) -> None: ...
+    def close(self, delay: float | None = None) -> None: ...
+
+    def get_finger_position(self) -> float:
+        return self.finger
+
+    def grasp_confirmed(self) -> bool | None:
+        return self.confirmed
+
+
+class _Arm:
+    model = VX300S
+
+    def __init__(self, gripper: GripperBase) -> None:
+        self.gripper = gripper
+
+
+def test_holding_is_the_grippers_own_confirmation_else_the_finger_gap() -> None:
+    empty = VX300S.finger_limits[0]
+    wide, shut = empty + GRASP_MARGIN_M + 0.005, empty + 0.001
+    # A gripper that senses no more than its fingers (the base class): the gap decides.
+    assert GripperBase.grasp_confirmed(_Gripper(wide, None)) is None
+    assert holding(_Arm(_Gripper(wide, None)))
+    assert not holding(_Arm(_Gripper(shut, None)))
+    # One that senses a grasp decides itself, whatever the gap says.
+    assert not holding(_Arm(_Gripper(wide, False)))
+    assert holding(_Arm(_Gripper(shut, True)))
+
+
+def _emulated(**grab) -> Config:
+    config = _config(**grab)
+    return dataclasses.replace(
+        config, sim=dataclasses.replace(config.sim, arm="dynamixel-emulated")
+    )
+
+
+def _spy_confirmations(gripper, monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """Every answer the gripper's grasp_confirmed() gives from now on."""
+    answers: list[bool] = []
+    real = gripper.grasp_confirmed
+
+    def spy() -> bool:
+        answers.append(real())
+        return answers[-1]
+
+    monkeypatch.setattr(gripper, "grasp_confirmed", spy)
+    return answers
+
+
+def test_through_the_dynamixel_driver_the_grab_takes_the_grippers_confirmation(
+    monkeypatch,
+) -> None:
+    # The driver over the servo-bus emulator: the task asks the gripper (current and finger
+    # gap) after the close and after the lift; the simulator says the bottle is held up.
+    pytest.importorskip("dynamixel_sdk")
+    with sim_system(_emulated(), seed=2, scene=_scene(BOTTLE)) as system:
+        answers = _spy_confirmations(system.arm.gripper, monkeypatch)
+        z0 = system.world.T_base_object("bottle")[2, 3]
+        status = system.run_task("grab", grab)
+        assert status.phase == "succeeded", status.error
+        assert answers == [True, True]
+        assert system.world.held_object() == "bottle"
+        assert system.world.T_base_object("bottle")[2, 3] - z0 == pytest.approx(0.10, abs=0.01)
+
+
+def test_through_the_dynamixel_driver_a_close_on_nothing_is_no_grasp_and_the_grab_stops(
+    monkeypatch,
+) -> None:
+    # The bottle is taken away (by the simulator, as a hand would) just before the gripper
+    # closes: the gripper does not confirm, the task says so, opens and does not lift.
+    pytest.importorskip("dynamixel_sdk")
+    with sim_system(_emulated(), seed=2, scene=_scene(BOTTLE)) as system:
+        world = system.world
+        answers = _spy_confirmations(system.arm.gripper, monkeypatch)
+        close = TaskContext.close_gripper
+
+        def close_on_nothing(ctx: TaskContext) -> None:
+            world.set_object_pose("bottle", make_T(np.eye(3), [0.30, 0.40, 0.0]))
+            close(ctx)
+
+        monkeypatch.setattr(TaskContext, "close_gripper", close_on_nothing)
+        status = system.run_task("grab", grab)
+        assert status.phase == "failed"
+        assert "the gripper closed on nothing" in status.error
+        assert answers == [False]
+        assert status.result["stages"][-1] == "approach"
+        system.pump(system.clock() + 1.0)
+        assert world.held_object() is None
+        assert world.finger_position() > VX300S.finger_limits[1] - 0.005  # opened again
+        assert world.T_base_object("bottle")[:3, 3] == pytest.approx([0.30, 0.40, 0.0], abs=0.01)

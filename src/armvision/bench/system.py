@@ -99,9 +99,13 @@ def sim_truth_calibration(T_base_cam: np.ndarray) -> CalibrationStatus:
 
 #: The emulated bus's packet latency: its servos share the machine's cores with everything else.
 EMULATED_BUS_LATENCY_MS = 100.0
+#: ... and in lockstep, where waiting costs no simulated time: an emulator thread starved of the
+#: CPU for a few hundred ms by other jobs must not read as three lost state reads (a lost
+#: contact), or a run would depend on the machine's load (eval grab saw it with 5 jobs on 2 cores).
+LOCKSTEP_BUS_LATENCY_MS = 1000.0
 
 
-def _sim_arm(world: SimWorld, arm_seed: int | Sequence[int] | None) -> tuple[Arm, tuple]:
+def sim_arm(world: SimWorld, arm_seed: int | Sequence[int] | None) -> tuple[Arm, tuple]:
     """``config.sim.arm``: SimArm, or the Dynamixel driver over the servo-bus emulator (the
     emulator too, for the system to close). In lockstep the driver reads on demand and waits
     by advancing the world, so runs stay repeatable."""
@@ -119,7 +123,7 @@ def _sim_arm(world: SimWorld, arm_seed: int | Sequence[int] | None) -> tuple[Arm
             moving_time=robot.moving_time,
             accel_time=robot.accel_time,
             gripper_pressure=robot.gripper_pressure,
-            latency_ms=EMULATED_BUS_LATENCY_MS,
+            latency_ms=LOCKSTEP_BUS_LATENCY_MS if lockstep else EMULATED_BUS_LATENCY_MS,
             state_rate_hz=0.0 if lockstep else 200.0,
             clock=lambda: world.time,
             sleep=world.advance if lockstep else None,
@@ -148,7 +152,7 @@ def sim_system(
     The system owns the world, the arm and the camera.
     """
     world = SimWorld(config, seed, mode=mode, scene=scene)
-    arm, bus = _sim_arm(world, arm_seed)
+    arm, bus = sim_arm(world, arm_seed)
     camera = SimCamera(world)
     if calibration is None:
         calibration = sim_truth_calibration(world.T_base_cam())

@@ -50,7 +50,7 @@ def cmd_eval_liquid(args: argparse.Namespace, config: Config) -> int:
 def cmd_eval_fusion(args: argparse.Namespace, config: Config) -> int:
     from armvision.eval.fusion import evaluate_fusion
 
-    result = evaluate_fusion(config, args.seed, waypoints=args.waypoints)
+    result = evaluate_fusion(config, args.seed, waypoints=args.waypoints, objects=not args.ee_only)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -64,6 +64,11 @@ def cmd_eval_fusion(args: argparse.Namespace, config: Config) -> int:
     )
     for name in ("fused", "camera", "encoders", "paper"):
         print(f"  {name:<9} RMSE {summary[f'ee_rmse_mm_{name}']:6.2f} mm")
+    velocities = "fused" if result["ee"]["joint_velocities_fused"] else "not fused"
+    print(
+        f"  fused velocity RMSE {summary['ee_velocity_rmse_mm_s_fused']:6.1f} mm/s "
+        f"(arm {result['ee']['arm']}, measured joint velocities {velocities})"
+    )
     return 0
 
 

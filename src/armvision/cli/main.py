@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from armvision import __version__
-from armvision.cli.args import MAX_SEED, int_in, millimetres, out_dir, seed, seeds
+from armvision.cli.args import MAX_SEED, arm_option, int_in, millimetres, out_dir, seed, seeds
 from armvision.cli.calibrate import CALIBRATION_METHODS, cmd_calibrate
 from armvision.cli.evaluate import (
     cmd_eval_calibration,
@@ -241,7 +241,13 @@ def _add_eval_parsers(eval_sub: Any) -> None:
         default=10,
         help="poses of the scripted motion (default 10)",
     )
+    fusion.add_argument(
+        "--ee-only",
+        action="store_true",
+        help="the end-effector fusion only, without the object tracking (half the time)",
+    )
     fusion.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    arm_option(fusion)
     fusion.set_defaults(func=cmd_eval_fusion)
     calib = eval_sub.add_parser("calibration", help="camera-to-robot calibration, every solver")
     calib.add_argument(

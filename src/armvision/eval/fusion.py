@@ -17,7 +17,12 @@ readings and answer at every tick "where is the end effector now?":
 - ``paper``: :class:`~armvision.fusion.kalman.PaperKF`, the paper's 7-state filter, updated
   at each tick with the camera when a new tag pose came in, else with the encoders.
 
-RMSE is over every tick of the motion against the simulator's ``T_base_ee``. The raw errors of
+The arm is ``sim.arm``'s: SimArm (no measured velocities), or the Dynamixel driver over the
+servo-bus emulator (``--arm dynamixel-emulated``), whose Present_Velocity the filters fuse while
+``fusion.joint_velocities`` is on (the encoders-only filter too: it is the same filter with one
+source). RMSE is over every tick of the motion against the simulator's ``T_base_ee``; the
+velocity's RMSE (``velocity_rmse_mm_s``) against the true positions differenced a tick either
+side. The raw errors of
 each source (the camera's at its detection instants, the encoders' fk at every tick) are
 reported too, and so is the Cartesian random-walk variant of the filter
 (``encoder_bias = "cartesian"``, no camera states) for comparison.
@@ -170,10 +175,15 @@ class _RecordingArm:
     def __init__(self, arm: Any) -> None:
         self.arm = arm
         self.last: Array | None = None
+        self.last_velocities: Array | None = None
 
     def get_joint_positions(self) -> Array:
         self.last = self.arm.get_joint_positions()
         return self.last
+
+    def get_joint_velocities(self) -> Array | None:
+        self.last_velocities = self.arm.get_joint_velocities()
+        return self.last_velocities
 
 
 # --------------------------------------------------------------------------- end effector
@@ -241,6 +251,8 @@ class _EERun:
         self.rows: dict[str, list[Array]] = {
             k: [] for k in ("truth", "fused", "camera", "encoders", "paper", "cartesian")
         }
+        self.velocities: dict[str, list[Array]] = {"fused": [], "encoders": []}
+        self.measured_velocities = False  # the arm gave joint velocities
         self.raw_camera: list[Array] = []
         self.raw_encoders: list[Array] = []
         self.frames = 0
@@ -273,8 +285,9 @@ class _EERun:
         assert q is not None and snapshot.ee is not None
         t_now = snapshot.time
         truth = self.world.T_base_ee()[:3, 3]
-        self.encoders_only.update_encoders(t_now, q)
-        self.cartesian.update_encoders(t_now, q)
+        qd = self.recorder.last_velocities
+        self.encoders_only.update_encoders(t_now, q, qd)
+        self.cartesian.update_encoders(t_now, q, qd)
         for t_tag, T_cam_tag in new_tags:
             self.camera_only.update_camera(t_tag, T_cam_tag)
             self.cartesian.update_camera(t_tag, T_cam_tag)
@@ -282,6 +295,9 @@ class _EERun:
         self.raw_encoders.append(p_fk - truth)
         self._step_paper(p_fk, new_tags)
         self._record(t_now, truth, np.asarray(snapshot.ee.p_base))
+        self.velocities["fused"].append(np.asarray(snapshot.ee.v_base))
+        self.velocities["encoders"].append(np.asarray(self.encoders_only.estimate(t_now).v_base))
+        self.measured_velocities = self.measured_velocities or qd is not None
 
     def _step_paper(self, p_fk: Array, new_tags: list[tuple[float, Array]]) -> None:
         paper = self.paper
@@ -334,6 +350,11 @@ def _ee_result(run: _EERun, waypoints: int, encoder_bias: Array) -> dict[str, An
         est = np.array(rows[name])
         ok = np.all(np.isfinite(est), axis=1)
         rmse[name] = _rmse_mm(est[ok] - truth[ok])
+    # The true velocity by central differences of the true positions (a tick apart).
+    v_true = (truth[2:] - truth[:-2]) / (2.0 * run.dt)
+    velocity_rmse = {
+        name: _rmse_mm(np.array(v)[1:-1] - v_true) for name, v in run.velocities.items()
+    }
     final = run.loop.snapshot()
     ee = final.ee
     stats = final.ee_stats
@@ -345,6 +366,8 @@ def _ee_result(run: _EERun, waypoints: int, encoder_bias: Array) -> dict[str, An
         "frames": frames,
         "tag_detection_rate": run.detected / frames if frames else 0.0,
         "rmse_mm": rmse,
+        "velocity_rmse_mm_s": velocity_rmse,
+        "joint_velocities_fused": run.measured_velocities and run.loop.config.joint_velocities,
         "raw_rmse_mm": {
             "camera": _rmse_mm(np.array(run.raw_camera)),
             "encoders": _rmse_mm(run.raw_encoders),
@@ -371,6 +394,7 @@ def _evaluate_ee(
     waypoints: int,
     move_time: float,
 ) -> tuple[dict[str, Any], Array, Array, Array, dict[str, Any]]:
+    from armvision.bench.system import sim_arm
     from armvision.perception.tags import TagDetector
     from armvision.sim.arm import SimArm
     from armvision.sim.camera import SimCamera
@@ -380,22 +404,28 @@ def _evaluate_ee(
         config, sim=dataclasses.replace(config.sim, min_objects=0, max_objects=0)
     )
     with SimWorld(empty, seed) as world, SimCamera(world) as camera:
-        arm = SimArm(world)
-        T_base_cam_true = world.T_base_cam()
-        T_est, calibration = _ee_calibration(
-            T_base_cam_true, seed, T_base_cam_estimate, calibration_error
-        )
-        T_ee_tag = world.T_ee_tag
-        rng = np.random.default_rng([seed, 0xF05])
-        poses = scripted_waypoints(rng, T_est, T_ee_tag, camera.intrinsics, waypoints)
-        detector = TagDetector.from_config(config.tag, ids=[config.tag.id])
-        if not arm.set_ee_pose_matrix(poses[0], moving_time=2.0):
-            raise RuntimeError(f"cannot reach the first waypoint: {arm.last_error}")
-        run = _EERun(config.fusion, world, camera, arm, detector, T_est, T_ee_tag)
-        _run_motion(world, arm, poses, move_time, run)
-        arm.close()
+        arm, owned = sim_arm(world, None)  # sim.arm: SimArm or the emulated Dynamixel bus
+        try:
+            encoder_bias = arm.encoder_bias if isinstance(arm, SimArm) else np.zeros(6)
+            T_base_cam_true = world.T_base_cam()
+            T_est, calibration = _ee_calibration(
+                T_base_cam_true, seed, T_base_cam_estimate, calibration_error
+            )
+            T_ee_tag = world.T_ee_tag
+            rng = np.random.default_rng([seed, 0xF05])
+            poses = scripted_waypoints(rng, T_est, T_ee_tag, camera.intrinsics, waypoints)
+            detector = TagDetector.from_config(config.tag, ids=[config.tag.id])
+            if not arm.set_ee_pose_matrix(poses[0], moving_time=2.0):
+                raise RuntimeError(f"cannot reach the first waypoint: {arm.last_error}")
+            run = _EERun(config.fusion, world, camera, arm, detector, T_est, T_ee_tag)
+            _run_motion(world, arm, poses, move_time, run)
+        finally:
+            arm.close()
+            for thing in owned:
+                thing.close()
 
-    result = _ee_result(run, len(poses), arm.encoder_bias)
+    result = _ee_result(run, len(poses), encoder_bias)
+    result["arm"] = config.sim.arm
     refined = run.loop.ee_filter.T_base_cam_refined()
     mm, deg = _camera_pose_error(refined, T_base_cam_true)
     calibration["refined_camera_position_error_mm"] = mm
@@ -685,8 +715,15 @@ def evaluate_fusion(
     moving_s: float = 3.0,
     crossing_s: float = 4.0,
     match_radius: float = 0.05,
+    objects: bool = True,
 ) -> dict[str, Any]:
     """End-effector fusion and object tracking vs the simulator (module docstring).
+
+    ``objects=False`` evaluates the end effector only (the object fields are then absent).
+    ``config.sim.arm`` chooses the arm of the end-effector run: SimArm (no measured joint
+    velocities) or the Dynamixel driver over the servo-bus emulator (Present_Velocity fused
+    while ``fusion.joint_velocities``; its encoders have no zero offset or noise beyond the
+    counts).
 
     ``summary``: ``ee_rmse_mm_fused``, ``ee_rmse_mm_camera``, ``ee_rmse_mm_encoders``,
     ``ee_rmse_mm_paper`` (each the estimator's RMSE over every tick of the motion),
@@ -715,21 +752,9 @@ def evaluate_fusion(
     ee, T_est, T_refined, T_true, calibration = _evaluate_ee(
         config, seed, T_base_cam_estimate, calibration_error, waypoints, move_time
     )
-    # The fusion loop maps detections with its newest camera pose: after the arm's motion, the
-    # calibration refined by the end-effector filter. The other two are for comparison.
-    objects = _evaluate_objects(
-        config,
-        seed,
-        {"refined": T_refined, "given": T_est, "true": T_true},
-        static_s,
-        moving_s,
-        crossing_s,
-        match_radius,
-    )
-    tracked = objects["by_calibration"]["refined"]
     rmse = ee["rmse_mm"]
     best_single = min(rmse["camera"], rmse["encoders"])
-    summary = {
+    summary: dict[str, Any] = {
         "ee_rmse_mm_fused": rmse["fused"],
         "ee_rmse_mm_camera": rmse["camera"],
         "ee_rmse_mm_encoders": rmse["encoders"],
@@ -738,20 +763,38 @@ def evaluate_fusion(
         "ee_rmse_mm_fused_cartesian_bias": rmse["cartesian"],
         "ee_rmse_mm_camera_raw": ee["raw_rmse_mm"]["camera"],
         "ee_rmse_mm_encoders_raw": ee["raw_rmse_mm"]["encoders"],
+        "ee_velocity_rmse_mm_s_fused": ee["velocity_rmse_mm_s"]["fused"],
+        "ee_velocity_rmse_mm_s_encoders": ee["velocity_rmse_mm_s"]["encoders"],
         "tag_detection_rate": ee["tag_detection_rate"],
-        "object_rmse_mm": tracked["static_rmse_mm"],
-        "object_rmse_mm_bottles": tracked["static_rmse_mm_bottles"],
-        "moving_object_rmse_mm": tracked["moving_rmse_mm"],
-        "crossing_object_rmse_mm": tracked["crossing_rmse_mm"],
-        "id_switches": tracked["id_switches"],
-        "object_label_accuracy": tracked["label_accuracy"],
-        "object_rmse_mm_given_calibration": objects["by_calibration"]["given"]["static_rmse_mm"],
-        "object_rmse_mm_true_calibration": objects["by_calibration"]["true"]["static_rmse_mm"],
     }
-    return {
-        "seed": seed,
-        "summary": summary,
-        "calibration": calibration,
-        "ee": ee,
-        "objects": objects,
-    }
+    out: dict[str, Any] = {"seed": seed, "summary": summary, "calibration": calibration, "ee": ee}
+    if not objects:
+        return out
+    # The fusion loop maps detections with its newest camera pose: after the arm's motion, the
+    # calibration refined by the end-effector filter. The other two are for comparison.
+    tracking = _evaluate_objects(
+        config,
+        seed,
+        {"refined": T_refined, "given": T_est, "true": T_true},
+        static_s,
+        moving_s,
+        crossing_s,
+        match_radius,
+    )
+    tracked = tracking["by_calibration"]["refined"]
+    summary.update(
+        {
+            "object_rmse_mm": tracked["static_rmse_mm"],
+            "object_rmse_mm_bottles": tracked["static_rmse_mm_bottles"],
+            "moving_object_rmse_mm": tracked["moving_rmse_mm"],
+            "crossing_object_rmse_mm": tracked["crossing_rmse_mm"],
+            "id_switches": tracked["id_switches"],
+            "object_label_accuracy": tracked["label_accuracy"],
+            "object_rmse_mm_given_calibration": tracking["by_calibration"]["given"][
+                "static_rmse_mm"
+            ],
+            "object_rmse_mm_true_calibration": tracking["by_calibration"]["true"]["static_rmse_mm"],
+        }
+    )
+    out["objects"] = tracking
+    return out

@@ -55,6 +55,11 @@ frame from the same two sources, with what the paper's filter lacks:
   level process noise"); while it exceeds ``adaptive_threshold`` the process noise is scaled up
   multiplicatively, and back down to nominal when it falls below, so the filter is smooth when
   the arm is still and follows it when it accelerates.
+- *Measured joint velocities* where the arm has them (the Dynamixel driver reads
+  Present_Velocity with every position): the end effector's velocity Jv(q) qd, with
+  covariance Jv diag(sigma_qd^2) Jv^T, fused with the encoder reading of the same instant as
+  a measurement of the velocity states, so that the filter's velocity does not have to be
+  inferred from successive positions alone (``fusion.joint_velocities``).
 - *Joseph-form update*, P = (I - KH) P (I - KH)^T + K R K^T, symmetrised, so the covariance
   stays symmetric positive definite whatever the gain (:func:`joseph_update`).
 """
@@ -728,6 +733,7 @@ class EEFilter:
             max_rejections=config.max_rejections,
         )
         self._joint_var = encoder_joint_variance(math.radians(config.encoder_noise_deg))
+        self._velocity_var = math.radians(config.velocity_noise_deg_s) ** 2
         self._events: list[_Event] = []
         self._checkpoints: list[_Checkpoint] = []
         self._joint_history: list[tuple[float, Array]] = []
@@ -743,12 +749,19 @@ class EEFilter:
         """Time of the newest measurement fused, or None before the first."""
         return self.core.t
 
-    def update_encoders(self, t: float, q: ArrayLike) -> None:
-        """Fuse the joint encoder readings ``q`` (rad) taken at time ``t``."""
+    def update_encoders(self, t: float, q: ArrayLike, qd: ArrayLike | None = None) -> None:
+        """Fuse the joint encoder readings ``q`` (rad) taken at time ``t``, and the joint
+        velocities ``qd`` (rad/s) measured with them if the arm measures them (None: it does
+        not) and ``config.joint_velocities`` is on: the end effector's velocity Jv(q) qd, a
+        measurement of the velocity states (a constant zero offset moves no joint, so the
+        bias states do not enter it)."""
         if not self.use_encoders:
             raise FusionError("this filter was built without encoders (use_encoders=False)")
         t = as_time("t", t)
         q = as_array("joint positions", q, (self.model.dof,))
+        qd_measured = None
+        if qd is not None and self.config.joint_velocities:
+            qd_measured = as_array("joint velocities", qd, (self.model.dof,))
         self._remember_joints(t, q)
         T_base_ee, Jv, _ = point_jacobian(q, self.model)
         H = np.zeros((3, self.core.n))
@@ -758,7 +771,15 @@ class EEFilter:
         elif self.bias_model == "cartesian":
             H[:, self._b] = np.eye(3)
         R = encoder_covariance(Jv, self._joint_var) + np.eye(3) * 1e-12
-        self._add(t, [Measurement("encoders", T_base_ee[:3, 3], H, R)])
+        measurements: list[Measurement | Callable[[], Measurement | None]] = [
+            Measurement("encoders", T_base_ee[:3, 3], H, R)
+        ]
+        if qd_measured is not None:
+            H_v = np.zeros((3, self.core.n))
+            H_v[:, 3:6] = np.eye(3)
+            R_v = encoder_covariance(Jv, self._velocity_var) + np.eye(3) * 1e-12
+            measurements.append(Measurement("joint velocities", Jv @ qd_measured, H_v, R_v))
+        self._add(t, measurements)
 
     def update_camera(self, t: float, T_cam_tag: ArrayLike) -> None:
         """Fuse a gripper-tag pose seen by the camera in a frame captured at time ``t``."""

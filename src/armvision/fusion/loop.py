@@ -4,7 +4,9 @@
 :class:`~armvision.fusion.tracker.MultiObjectTracker`. Each cycle (:meth:`FusionLoop.step`)
 it
 
-1. reads the arm's encoders (``arm.get_joint_positions()``) and stamps them with ``clock()``;
+1. reads the arm's encoders (``arm.get_joint_positions()``, and the joint velocities the arm
+   measured with them, ``arm.get_joint_velocities()``, where it measures them) and stamps
+   them with ``clock()``;
 2. takes every camera result pushed since the last cycle by other threads
    (:meth:`~FusionLoop.push_tag` for the gripper tag, :meth:`~FusionLoop.push_detections`
    for bottles and cups), oldest first, each stamped with its frame's capture time;
@@ -96,9 +98,11 @@ class FusionSnapshot:
 
 
 class JointReader(Protocol):
-    """What the loop asks of an arm: its encoder reading, rad (the Arm interface has it)."""
+    """What the loop asks of an arm (the Arm interface has both): its encoder reading, rad,
+    and the joint velocities measured with it, rad/s, or None if the arm measures none."""
 
     def get_joint_positions(self) -> ArrayLike: ...
+    def get_joint_velocities(self) -> ArrayLike | None: ...
 
 
 class FusionLoop:
@@ -121,8 +125,13 @@ class FusionLoop:
         drift: DriftMonitor | None = None,
     ) -> None:
         self.config = config.fusion if isinstance(config, Config) else config
-        if not callable(getattr(arm, "get_joint_positions", None)):
-            raise FusionError("arm must have get_joint_positions() (the Arm interface)")
+        if not all(
+            callable(getattr(arm, name, None))
+            for name in ("get_joint_positions", "get_joint_velocities")
+        ):
+            raise FusionError(
+                "arm must have get_joint_positions() and get_joint_velocities() (the Arm interface)"
+            )
         self.arm = arm
         self.clock = clock
         self.focal_px = float(focal_px)
@@ -184,10 +193,11 @@ class FusionLoop:
         """One fusion cycle (see the module docstring); returns and publishes the snapshot."""
         t = float(self.clock())
         q = np.asarray(self.arm.get_joint_positions(), dtype=float)
+        qd = self.arm.get_joint_velocities()
         with self._lock:
             tags, self._pending_tags = self._pending_tags, []
             objects, self._pending_objects = self._pending_objects, []
-        self.ee_filter.update_encoders(t, q)
+        self.ee_filter.update_encoders(t, q, qd)
         for t_tag, T_cam_tag in sorted(tags, key=lambda item: item[0]):
             self.ee_filter.update_camera(t_tag, T_cam_tag)
             self._check_drift(t_tag, T_cam_tag)

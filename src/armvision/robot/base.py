@@ -92,6 +92,11 @@ class TrapezoidalTrajectory:
 class Gripper(Protocol):
     """The gripper: two fingers on one motor. Positions are one finger's travel, metres.
 
+    ``grasp_confirmed()``: whether the gripper itself senses that it holds something (a
+    Dynamixel gripper: its current and the finger gap together), or None when it senses no
+    more than its finger position (the caller then judges by the gap; see
+    :func:`armvision.tasks.grab.holding`).
+
     ``open``/``close`` command the fingers and then wait ``delay`` seconds for them to get
     there (or onto an object); ``delay=None`` waits the backend's own time (Interbotix's
     gripper delay, 1 s), ``delay=0`` returns at once so the caller can wait interruptibly.
@@ -102,6 +107,7 @@ class Gripper(Protocol):
     def grasp(self) -> None: ...
     def release(self) -> None: ...
     def get_finger_position(self) -> float: ...
+    def grasp_confirmed(self) -> bool | None: ...
 
 
 @runtime_checkable
@@ -110,7 +116,9 @@ class Arm(Protocol):
     (most of it comes with :class:`ArmBase`, which leaves three hooks to write).
 
     ``model``: its kinematics; ``gripper``; ``last_error``: why the last command was refused
-    (None if it was not). Commands are checked before anything moves and return False, with
+    (None if it was not); ``get_joint_velocities()``: the velocities measured with the last
+    position reading, or None when the backend measures none. Commands are checked before
+    anything moves and return False, with
     the arm where it was, when a check fails. ``blocking=False`` starts a move and returns; the
     runtime then polls ``moving`` / ``motion_remaining()`` and waits ``settle_time`` more, so
     that Stop (``halt()``) can end any wait. ``close()`` releases the backend's connection.
@@ -171,6 +179,7 @@ class Arm(Protocol):
         position_priority: bool = False,
     ) -> bool: ...
     def get_joint_positions(self) -> Array: ...
+    def get_joint_velocities(self) -> Array | None: ...
     def get_ee_pose(self) -> Array: ...
     def stream_joint_targets(self, joint_positions: ArrayLike) -> bool: ...
 
@@ -194,6 +203,10 @@ class GripperBase(abc.ABC):
 
     @abc.abstractmethod
     def get_finger_position(self) -> float: ...
+
+    def grasp_confirmed(self) -> bool | None:
+        """None: this gripper senses nothing but its finger position (the default)."""
+        return None
 
 
 class ArmBase(abc.ABC):
@@ -250,6 +263,11 @@ class ArmBase(abc.ABC):
     def get_joint_positions(self) -> Array:
         """Joint angles from the encoders, rad, in ``model.joint_names`` order."""
         return np.array(self._read_joint_positions(), dtype=float)
+
+    def get_joint_velocities(self) -> Array | None:
+        """The joint velocities measured with the last :meth:`get_joint_positions` reading,
+        rad/s, or None when the backend measures none (the default: SimArm, Interbotix)."""
+        return None
 
     def get_ee_pose(self) -> Array:
         """``T_base_ee`` from the encoder readings and forward kinematics."""

@@ -481,6 +481,7 @@ class DynamixelArm(ArmBase):
         self.state_rate_hz = float(state_rate_hz)
         self.reads = 0  # successful state reads, for the benchmark
         self._state: JointState | None = None
+        self._last_read: JointState | None = None  # what get_joint_positions last returned
         self._bad_reads = 0  # state reads in a row that failed
         self._ticks: dict[int, int] = {}  # latest Present_Position each servo answered
         self._stop = threading.Event()
@@ -728,7 +729,15 @@ class DynamixelArm(ArmBase):
     # ---------------------------------------------------------------- ArmBase hooks
 
     def _read_joint_positions(self) -> Array:
-        return self.joint_state().positions.copy()
+        state = self.joint_state()
+        self._last_read = state
+        return state.positions.copy()
+
+    def get_joint_velocities(self) -> Array:
+        """Present_Velocity of the reading the last :meth:`get_joint_positions` returned
+        (the latest one if there was none), rad/s."""
+        state = self._last_read if self._last_read is not None else self.joint_state()
+        return state.velocities.copy()
 
     def _profile_rows(self, q: Array, moving_ms: int, accel_ms: int) -> dict[int, list[int]]:
         """Profile_Acceleration, Profile_Velocity, Goal_Position (addresses 108-119) per master;

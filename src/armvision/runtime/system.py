@@ -101,6 +101,10 @@ class _CorrectedEncoders:
         q = np.asarray(self.arm.get_joint_positions(), dtype=float)
         return q if self.offsets is None else q - self.offsets
 
+    def get_joint_velocities(self) -> Array | None:
+        """The arm's measured joint velocities (a zero offset changes none of them)."""
+        return self.arm.get_joint_velocities()
+
     def raw(self, q: Any) -> Array:
         """The encoder reading a corrected one came from (the offsets added back)."""
         q = np.array(q, dtype=float)

@@ -27,7 +27,7 @@ from armvision.fusion.tracker import TrackState
 from armvision.robot.kinematics import ik
 from armvision.robot.vx300s import FINGER_PAD_INSET
 from armvision.runtime.context import TaskContext
-from armvision.tasks.grab import GRASP_MARGIN_M, HOVER_CLEARANCE_M, GrabResult, safe_start_pose
+from armvision.tasks.grab import HOVER_CLEARANCE_M, GrabResult, holding, safe_start_pose
 from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 Array = NDArray[np.float64]
@@ -198,7 +198,7 @@ class Carrier:
         )
         self.straight("approach", [xy[0], xy[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
         self.ctx.close_gripper()
-        if self.finger() < self.ctx.arm.model.finger_limits[0] + GRASP_MARGIN_M:
+        if not holding(self.ctx.arm):
             self.ctx.open_gripper()
             self.retreat(xy)
             raise Abort("could not grasp the bottle again where it was presented")

@@ -32,9 +32,11 @@ through was checked against the scene.
    on that line, at the grasp height, facing the bottle (yaw). Grasp height = the table
    (bottle centre minus half its estimated height) + ``grasp_height_fraction`` x height.
 4. **Approach**: straight on to the bottle's axis at the grasp height, same yaw.
-5. **Close**, then **lift** ``grab.lift`` (10 cm), then **check** the grasp: the finger gap
-   must stay above the empty-closed gap by :data:`GRASP_MARGIN_M` (an empty gripper closes
-   to 0.021 m per finger; on a bottle of radius r it stops near r + 12.5 mm).
+5. **Close**, then **lift** ``grab.lift`` (10 cm), then **check** the grasp (after the close
+   and after the lift, :func:`holding`): the gripper's own confirmation where it has one (the
+   Dynamixel gripper's current and finger gap together), else the finger gap must stay above
+   the empty-closed gap by :data:`GRASP_MARGIN_M` (an empty gripper closes to 0.021 m per
+   finger; on a bottle of radius r it stops near r + 12.5 mm).
 
 Safety and robustness: a bottle nearer than ``min_base_distance`` to the base axis aborts the
 task; every motion's result is checked and a refused one is tried again after
@@ -57,7 +59,7 @@ import numpy as np
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.geometry import as_xyz, make_T, rot_z
-from armvision.robot.base import DEFAULT_ACCEL_TIME_S
+from armvision.robot.base import DEFAULT_ACCEL_TIME_S, Arm
 from armvision.robot.kinematics import VX300S, ArmModel, fk, ik
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.state import SystemState
@@ -67,6 +69,18 @@ from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, pace
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
 GRASP_MARGIN_M = 0.004
+
+
+def holding(arm: Arm) -> bool:
+    """Whether the closed gripper holds something: the gripper's own confirmation where it
+    senses one (a Dynamixel gripper: current and finger gap together), else the finger gap
+    above the empty-closed one by :data:`GRASP_MARGIN_M`."""
+    confirmed = arm.gripper.grasp_confirmed()
+    if confirmed is not None:
+        return confirmed
+    return arm.gripper.get_finger_position() >= arm.model.finger_limits[0] + GRASP_MARGIN_M
+
+
 #: A bottle that moved more than this between two reads of its track is re-planned for, metres.
 MOVED_M = 0.02
 #: Half-width of the corridor the open gripper sweeps on its way in: pads 89 mm apart plus
@@ -375,8 +389,7 @@ class _Grab:
 
         ctx.progress(0.7, "closing the gripper")
         ctx.close_gripper()
-        empty = ctx.arm.model.finger_limits[0]
-        if self.finger() < empty + GRASP_MARGIN_M:
+        if not holding(ctx.arm):
             self.back_off()
             raise _Abort("the gripper closed on nothing: the bottle was not between the fingers")
         self.stages.append("closed")
@@ -387,7 +400,7 @@ class _Grab:
         self.move_straight("lift", lifted[:3, 3], segments=2)
         self.stages.append("lifted")
         finger = self.finger()
-        if finger < empty + GRASP_MARGIN_M:
+        if not holding(ctx.arm):
             raise _Abort("the bottle slipped out during the lift")
         self.stages.append("checked")
         ctx.progress(1.0, "holding the bottle")
@@ -587,8 +600,7 @@ class _PlannedGrab(_Grab):
 
         ctx.progress(0.7, "closing the gripper")
         ctx.close_gripper()
-        empty = model.finger_limits[0]
-        if self.finger() < empty + GRASP_MARGIN_M:
+        if not holding(ctx.arm):
             ctx.open_gripper()
             # Back out the way the gripper came in (checked free), then up.
             self.steps("back off", (*tuple(reversed(candidate.approach[:-1])), candidate.pregrasp))
@@ -600,7 +612,7 @@ class _PlannedGrab(_Grab):
         self.steps("lift", candidate.lift)
         self.stages.append("lifted")
         finger = self.finger()
-        if finger < empty + GRASP_MARGIN_M:
+        if not holding(ctx.arm):
             raise _Abort("the bottle slipped out during the lift")
         self.stages.append("checked")
         ctx.progress(1.0, "holding the bottle")
