@@ -13,7 +13,9 @@ bottle standing still is averaged). Per camera frame:
    Popoli, "Design and Analysis of Modern Tracking Systems", 1999, section 6.4); what is
    left is matched once more by distance alone within ``reassociation_radius`` (an object
    that stopped abruptly is gated out by its own prediction, see ``_reassociate``);
-3. associated tracks are updated; a detection left over starts a tentative track;
+3. associated tracks are updated; a detection left over starts a tentative track. A
+   detection whose fitted radius is dr off its track's counts with dr^2 more variance per axis,
+   in the association and the update (``SIZE_KNOWN_AFTER``);
 4. a tentative track is confirmed once it has ``confirm_hits`` hits in its last
    ``confirm_window`` frames (M of N), and dropped when it can no longer get there; any track
    unseen for ``drop_after_s`` seconds is dropped.
@@ -57,6 +59,11 @@ LABEL_MISMATCH_COST = 4.0
 NEW_TRACK_SPEED_SIGMA = 0.2
 #: Size (radius, height) of a track: the median of its last this many detections.
 SIZE_WINDOW = 15
+#: A track's radius counts against a detection's once it has this many radii: a detection
+#: whose fitted radius is off the track's by dr has a centre about dr off too (a partly hidden
+#: object's visible arc fitted with a third of its radius, or a circle across two objects), so
+#: dr^2 is added to its covariance on each axis.
+SIZE_KNOWN_AFTER = 5
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 
@@ -217,6 +224,12 @@ class _Track:
     def label(self) -> str:
         return max(sorted(self.votes), key=lambda k: self.votes[k])
 
+    def size_variance(self, m: ObjectMeasurement) -> float:
+        """dr^2 between the detection's radius and the track's (0 while either is unknown)."""
+        if m.radius is None or len(self.radii) < SIZE_KNOWN_AFTER:
+            return 0.0
+        return (m.radius - float(np.median(self.radii))) ** 2
+
     def state(self, t: float | None = None) -> TrackState:
         f = self.filter
         assert f.t is not None  # initialised in __init__
@@ -273,7 +286,8 @@ class MultiObjectTracker:
         z = np.array([m.p_base for m in measurements])  # (M, 3)
         R = np.array([m.R_base for m in measurements])  # (M, 3, 3)
         y = z[None, :, :] - x[:, None, :]  # (T, M, 3)
-        S = P[:, None] + R[None, :]  # (T, M, 3, 3)
+        size = np.array([[track.size_variance(m) for m in measurements] for track in self._tracks])
+        S = P[:, None] + R[None, :] + size[..., None, None] * np.eye(3)  # (T, M, 3, 3)
         d2 = np.einsum("tmi,tmi->tm", y, np.linalg.solve(S, y[..., None])[..., 0])
         labels = np.array([track.label for track in self._tracks])
         mismatch = labels[:, None] != np.array([m.label for m in measurements])[None, :]
@@ -306,7 +320,8 @@ class MultiObjectTracker:
         for j, m in enumerate(measurements):
             if j in assigned:
                 track = self._tracks[assigned[j]]
-                track.filter.update([Measurement("camera", m.p_base, _H, m.R_base)], gate=False)
+                R = m.R_base + np.eye(3) * track.size_variance(m)
+                track.filter.update([Measurement("camera", m.p_base, _H, R)], gate=False)
                 track.history.append(True)
                 track.hits += 1
                 track.last_seen = t
