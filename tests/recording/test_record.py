@@ -428,6 +428,38 @@ def test_export_lerobot_writes_the_v30_dataset(
     assert not (tmp_path / "b").exists()
 
 
+def test_export_lerobot_starts_new_files_past_the_size_limits(
+    moving: Recorded, still: Recorded, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An episode that would take a data or video file past its limit starts the next file
+    (LeRobot's next file index), never split."""
+    import pyarrow.parquet as pq
+
+    from armvision.recording import lerobot
+
+    # Limits below one episode's size: 0.25 MB of rows (each episode's depth PNGs are more),
+    # and 0 for the video (an open mp4 shows on disk only what the encoder has flushed, none of
+    # a 2 s video; a real limit, 200 MB, is far above that lag).
+    monkeypatch.setattr(lerobot, "DATA_FILES_SIZE_IN_MB", 0.25)
+    monkeypatch.setattr(lerobot, "VIDEO_FILES_SIZE_IN_MB", 0)
+    out = tmp_path / "dataset"
+    info = lerobot.export_lerobot([moving.path, still.path], out)
+    assert (info["data_files_size_in_mb"], info["video_files_size_in_mb"]) == (0.25, 0)
+    episodes = pq.read_table(out / LEROBOT_EPISODES_PATH.format(chunk_index=0, file_index=0))
+    prefix = f"videos/{COLOR}/"
+    for e, record in enumerate(episodes.to_pylist()):
+        assert (record["data/chunk_index"], record["data/file_index"]) == (0, e)
+        assert (record[prefix + "chunk_index"], record[prefix + "file_index"]) == (0, e)
+        assert record[prefix + "from_timestamp"] == 0.0
+        data = pq.read_table(out / LEROBOT_DATA_PATH.format(chunk_index=0, file_index=e))
+        assert data.column("episode_index").to_pylist() == [e] * record["length"]
+        assert data.column("index").to_pylist() == list(
+            range(record["dataset_from_index"], record["dataset_to_index"])
+        )
+        video = out / LEROBOT_VIDEO_PATH.format(video_key=COLOR, chunk_index=0, file_index=e)
+        assert len(_video_frames(video)) == record["length"]
+
+
 def test_replay_of_a_missing_or_foreign_file_is_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

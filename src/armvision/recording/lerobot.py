@@ -195,9 +195,11 @@ def _listed(stats: dict[str, np.ndarray]) -> dict[str, Any]:
 
 class _Files:
     """Files of one kind filled one after another, a new one (LeRobot's next chunk/file index)
-    when the next episode would take the current one past ``limit_mb``."""
+    when the next episode would take the current one past ``limit_mb``, reckoned as LeRobot
+    does from the size so far and its frames (an open mp4's size is what the encoder has
+    flushed, a little behind)."""
 
-    def __init__(self, limit_mb: int) -> None:
+    def __init__(self, limit_mb: float) -> None:
         self.limit = limit_mb * 1024 * 1024
         self.chunk = self.file = 0
         self.frames = 0  # in the current file
