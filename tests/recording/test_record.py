@@ -32,7 +32,7 @@ CAMERA_FRAME = "camera_color_optical_frame"
 
 @pytest.fixture(scope="module")
 def still(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
-    """2 s of the default scene, the arm at home: JPEG colour (the default)."""
+    """2 s of the default scene, the arm asleep (its sleep pose): JPEG colour (the default)."""
     return record_lockstep(tmp_path_factory.mktemp("recording") / "still.mcap", 2.0)
 
 
@@ -245,75 +245,228 @@ def test_perceive_replays_one_recorded_frame(
     assert "no frame 100000" in capsys.readouterr().err
 
 
-def test_export_lerobot_writes_the_documented_dataset(
-    moving: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+# LeRobot 0.4's v3.0 layout, as its lerobot/datasets/utils.py defines it (DEFAULT_DATA_PATH,
+# DEFAULT_VIDEO_PATH, DEFAULT_EPISODES_PATH, DEFAULT_TASKS_PATH, STATS_PATH,
+# create_empty_dataset_info and DEFAULT_FEATURES) and its LeRobotDatasetMetadata reads it.
+LEROBOT_DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+LEROBOT_VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+LEROBOT_EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+LEROBOT_INFO_KEYS = {
+    "codebase_version", "robot_type", "total_episodes", "total_frames", "total_tasks",
+    "chunks_size", "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits",
+    "data_path", "video_path", "features",
+}  # fmt: skip
+LEROBOT_DEFAULT_FEATURES = {
+    "timestamp": {"dtype": "float32", "shape": [1], "names": None},
+    **{k: {"dtype": "int64", "shape": [1], "names": None}
+       for k in ("frame_index", "episode_index", "index", "task_index")},
+}  # fmt: skip
+LEROBOT_STATS = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
+COLOR = "observation.images.color"
+DEPTH = "observation.images.depth"
+
+
+def _video_frames(path: Path) -> list[np.ndarray]:
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            return frames
+        frames.append(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+
+
+def test_export_lerobot_writes_the_v30_dataset(
+    moving: Recorded, still: Recorded, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     out = tmp_path / "dataset"
-    assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 0
-    assert "1 episode(s)" in capsys.readouterr().out
+    assert main(["export-lerobot", str(moving.path), str(still.path), "--out", str(out)]) == 0
+    assert "v3.0 dataset" in capsys.readouterr().out
     info = json.loads((out / "meta" / "info.json").read_text())
-    assert info["codebase_version"] == "v2.1" and info["fps"] == 30
-    assert info["total_episodes"] == 1 and info["splits"] == {"train": "0:1"}
-    (episode,) = [
-        json.loads(line) for line in (out / "meta/episodes.jsonl").read_text().splitlines()
-    ]
-    (task,) = [json.loads(line) for line in (out / "meta/tasks.jsonl").read_text().splitlines()]
-    assert task == {"task_index": 0, "task": "move the arm to its home pose"}
-    assert episode["tasks"] == [task["task"]] and episode["length"] == info["total_frames"]
-    data = out / info["data_path"].format(episode_chunk=0, episode_index=0)
-    table = pq.read_table(data)
-    import pyarrow as pa
-
-    types = {f.name: f.type for f in table.schema}
-    assert set(types) == {
-        "observation.state", "action", "observation.images.depth", "timestamp",
-        "frame_index", "episode_index", "index", "task_index",
+    assert set(info) == LEROBOT_INFO_KEYS
+    assert info["codebase_version"] == "v3.0" and info["fps"] == 30  # a whole number in v3.0
+    assert (info["data_path"], info["video_path"]) == (LEROBOT_DATA_PATH, LEROBOT_VIDEO_PATH)
+    assert (info["chunks_size"], info["data_files_size_in_mb"]) == (1000, 100)
+    assert info["video_files_size_in_mb"] == 200
+    assert info["total_episodes"] == 2 and info["splits"] == {"train": "0:2"}
+    assert info["total_tasks"] == 2
+    features = info["features"]
+    for key, feature in LEROBOT_DEFAULT_FEATURES.items():
+        assert features[key] == feature
+    for key in ("observation.state", "action"):
+        assert features[key] == {
+            "dtype": "float32", "shape": [6], "names": list(VX300S.joint_names)
+        }  # fmt: skip
+    assert features[DEPTH] == {
+        "dtype": "image", "shape": [480, 640, 1], "names": ["height", "width", "channel"]
     }  # fmt: skip
-    for key in ("observation.state", "action"):  # float32 vectors
-        assert pa.types.is_list(types[key]) and types[key].value_type == pa.float32()
-    assert types["observation.images.depth"] == pa.struct(
-        [("bytes", pa.binary()), ("path", pa.string())]
-    )  # LeRobot's (Hugging Face datasets') image
+    assert features[COLOR]["dtype"] == "video" and features[COLOR]["shape"] == [480, 640, 3]
+    assert features[COLOR]["info"]["video.fps"] == 30
+    assert features[COLOR]["info"]["video.codec"] == "mpeg4"
+    # Every file LeRobot's templates name, and nothing else (episodes share the files).
+    data = LEROBOT_DATA_PATH.format(chunk_index=0, file_index=0)
+    video = LEROBOT_VIDEO_PATH.format(video_key=COLOR, chunk_index=0, file_index=0)
+    episodes_file = LEROBOT_EPISODES_PATH.format(chunk_index=0, file_index=0)
+    assert {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()} == {
+        "meta/info.json", "meta/stats.json", "meta/tasks.parquet", episodes_file, data, video,
+    }  # fmt: skip
+
+    # Tasks: task_index, indexed (for pandas) by the task text.
+    tasks = pq.read_table(out / "meta/tasks.parquet")
+    pandas_meta = json.loads(tasks.schema.metadata[b"pandas"])
+    assert pandas_meta["index_columns"] == ["__index_level_0__"]
+    assert tasks.to_pydict() == {
+        "task_index": [0, 1],
+        "__index_level_0__": ["move the arm to its home pose", "observe the bench"],
+    }
+
+    # Frames: LeRobot's column types (Hugging Face features in the schema metadata).
+    table = pq.read_table(out / data)
+    types = {f.name: f.type for f in table.schema}
+    assert set(types) == {DEPTH, "observation.state", "action"} | set(LEROBOT_DEFAULT_FEATURES)
+    for key in ("observation.state", "action"):
+        assert types[key] == pa.list_(pa.float32(), 6)
+    assert types[DEPTH] == pa.struct([("bytes", pa.binary()), ("path", pa.string())])
     assert types["timestamp"] == pa.float32()
     for key in ("frame_index", "episode_index", "index", "task_index"):
         assert types[key] == pa.int64()
+    hf = json.loads(table.schema.metadata[b"huggingface"])["info"]["features"]
+    assert hf[DEPTH] == {"_type": "Image"} and hf["observation.state"]["length"] == 6
     rows = table.to_pydict()
+
+    # Episodes: where each one's rows and video frames are, and its statistics.
+    episodes = pq.read_table(out / episodes_file).to_pylist()
+    assert [e["episode_index"] for e in episodes] == [0, 1]
+    assert [e["tasks"] for e in episodes] == [[t] for t in tasks.to_pydict()["__index_level_0__"]]
+    n0, n1 = (e["length"] for e in episodes)
     n = table.num_rows
-    # The Home task's span at 30 FPS (its moving time, 2 s by default, and its settling).
-    assert n == episode["length"] and 55 <= n <= 120
-    assert rows["frame_index"] == list(range(n)) == rows["index"]
-    assert np.allclose(rows["timestamp"], np.arange(n) / 30.0, atol=1e-6)
-    for key in ("observation.state", "action"):
-        assert info["features"][key]["shape"] == [6]
-        assert info["features"][key]["names"] == list(VX300S.joint_names)
-    # The action ends at the commanded home pose; the readings get there (encoder noise).
-    home = np.asarray(rows["action"][-1])
-    assert np.allclose(home, VX300S.home, atol=1e-6)
-    assert np.abs(np.asarray(rows["observation.state"][-1]) - home).max() < np.radians(1.5)
-    assert np.abs(np.asarray(rows["observation.state"][0]) - home).max() > 0.5  # from sleep
-    # Depth is 16-bit PNG of millimetres; colour an mp4 of the same frames.
-    depth = cv2.imdecode(np.frombuffer(rows["observation.images.depth"][-1]["bytes"], np.uint8), -1)
-    assert depth.dtype == np.uint16 and depth.shape == (480, 640)
-    recorded = read_independently(moving.path)["/camera/aligned_depth_to_color/image_raw"]
-    assert any(  # the very millimetres of one of the recorded frames
-        np.array_equal(np.frombuffer(bytes(d.data), "<u2").reshape(480, 640), depth)
-        for *_, d in recorded
-    )
-    video = out / info["video_path"].format(
-        episode_chunk=0, video_key="observation.images.color", episode_index=0
-    )
-    capture = cv2.VideoCapture(str(video))
-    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == n
-    ok, image = capture.read()
-    assert ok and image.shape == (480, 640, 3)
-    (stats,) = [
-        json.loads(line) for line in (out / "meta/episodes_stats.jsonl").read_text().splitlines()
+    # The Home task's span at 30 FPS (its moving time, 2 s by default, and its settling); the
+    # still recording's 2 s.
+    assert n == n0 + n1 == info["total_frames"] and 55 <= n0 <= 120 and 55 <= n1 <= 65
+    prefix = f"videos/{COLOR}/"
+    for e, (start, length) in zip(episodes, ((0, n0), (n0, n1)), strict=True):
+        assert (e["dataset_from_index"], e["dataset_to_index"]) == (start, start + length)
+        assert (e["data/chunk_index"], e["data/file_index"]) == (0, 0)
+        assert (e[prefix + "chunk_index"], e[prefix + "file_index"]) == (0, 0)
+        assert e[prefix + "from_timestamp"] == pytest.approx(start / 30)
+        assert e[prefix + "to_timestamp"] == pytest.approx((start + length) / 30)
+        assert (e["meta/episodes/chunk_index"], e["meta/episodes/file_index"]) == (0, 0)
+        for key in features:
+            for stat in LEROBOT_STATS:
+                assert f"stats/{key}/{stat}" in e, (key, stat)
+    assert rows["index"] == list(range(n))
+    assert rows["frame_index"] == list(range(n0)) + list(range(n1))
+    assert rows["episode_index"] == [0] * n0 + [1] * n1 == rows["task_index"]
+    assert np.allclose(rows["timestamp"], np.asarray(rows["frame_index"]) / 30.0, atol=1e-6)
+
+    # The values against the recording: the action ends at the commanded home pose and the
+    # readings get there (encoder noise); the still run stays where it starts, asleep.
+    state, action = np.asarray(rows["observation.state"]), np.asarray(rows["action"])
+    assert np.allclose(action[n0 - 1], VX300S.home, atol=1e-6)
+    assert np.abs(state[n0 - 1] - VX300S.home).max() < np.radians(1.5)
+    assert np.abs(state[0] - VX300S.home).max() > 0.5  # from sleep
+    assert np.abs(state[n0:] - VX300S.sleep).max() < np.radians(1.5)
+    # Depth is 16-bit PNG of the very millimetres of recorded frames.
+    depths = [cv2.imdecode(np.frombuffer(d["bytes"], np.uint8), -1) for d in rows[DEPTH]]
+    assert all(d.dtype == np.uint16 and d.shape == (480, 640) for d in depths)
+    recorded = read_independently(moving.path)
+    recorded_mm = [
+        np.frombuffer(bytes(d.data), "<u2").reshape(480, 640)
+        for *_, d in recorded["/camera/aligned_depth_to_color/image_raw"]
     ]
-    assert stats["stats"]["observation.state"]["count"] == [n]
-    assert np.asarray(stats["stats"]["observation.images.color"]["mean"]).shape == (3, 1, 1)
-    assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 2  # not over it
+    recorded_rgb = [
+        cv2.cvtColor(cv2.imdecode(np.frombuffer(bytes(c.data), np.uint8), 1), cv2.COLOR_BGR2RGB)
+        for *_, c in recorded["/camera/color/image_raw/compressed"]
+    ]  # PNG colour: lossless
+    by_mm = {mm.tobytes(): i for i, mm in reversed(list(enumerate(recorded_mm)))}
+    shown = [by_mm[d.tobytes()] for d in depths[:n0]]  # each Home row's recorded frame
+
+    def moved(j: int) -> np.ndarray:  # the pixels the arm crossed from frame j - 1 to j + 1
+        before, after = recorded_rgb[max(j - 1, 0)], recorded_rgb[min(j + 1, len(recorded_rgb) - 1)]
+        return np.abs(before.astype(int) - after).sum(axis=2) > 30
+
+    row = max(range(n0), key=lambda r: int(moved(shown[r]).sum()))  # the arm moving most
+    j = shown[row]
+    # Colour: one mp4 of the episodes one after the other; the row's frame is the recorded one.
+    frames = _video_frames(out / video)
+    assert len(frames) == n and frames[0].shape == (480, 640, 3)
+    # The track's sample entry: MPEG-4 Part 2 video, "mpeg4" to FFmpeg (LeRobot's decoders).
+    assert b"stsd" in (out / video).read_bytes() and b"mp4v" in (out / video).read_bytes()
+    got = frames[row].astype(float)
+    assert np.abs(got - recorded_rgb[j]).mean() < 4.0  # within the video's loss (~2.5/255)
+    mask = moved(j)
+    assert mask.sum() > 1000
+    errors = [np.abs(got[mask] - recorded_rgb[i][mask]).mean() for i in (j - 1, j, j + 1)]
+    assert errors[1] < min(errors[0], errors[2]), errors  # there, nearest to its own frame
+
+    # Statistics, per episode and over the dataset (stats.json), of the values written.
+    stats = json.loads((out / "meta/stats.json").read_text())
+    assert set(stats) == set(features)
+    for key in ("observation.state", "action"):
+        values = np.asarray(rows[key])
+        for got, part in ((episodes[0], values[:n0]), (episodes[1], values[n0:])):
+            assert np.allclose(got[f"stats/{key}/min"], part.min(0))
+            assert np.allclose(got[f"stats/{key}/max"], part.max(0))
+            assert np.allclose(got[f"stats/{key}/mean"], part.mean(0), atol=1e-7)
+            assert got[f"stats/{key}/count"] == [len(part)]
+        assert np.allclose(stats[key]["mean"], values.mean(0), atol=1e-7)
+        assert np.allclose(stats[key]["std"], values.std(0), atol=1e-7)
+        q = np.asarray([stats[key][s] for s in ("min", "q01", "q10", "q50", "q90", "q99", "max")])
+        assert (np.diff(q, axis=0) >= 0).all() and stats[key]["count"] == [n]
+    mm = np.asarray(depths, dtype=float)
+    assert stats[DEPTH]["mean"] == [[[pytest.approx(mm.mean())]]]  # millimetres, [1, 1, 1]
+    assert stats[DEPTH]["std"] == [[[pytest.approx(mm.std())]]]
+    assert stats[DEPTH]["max"] == [[[mm.max()]]] and stats[DEPTH]["count"] == [n]
+    assert np.asarray(stats[COLOR]["mean"]).shape == (3, 1, 1)  # RGB in 0..1, as LeRobot's
+    # of the recorded frames, before the lossy video (within its error, as above)
+    decoded = np.asarray(frames, dtype=float).mean(axis=(0, 1, 2)) / 255.0
+    assert np.allclose(np.asarray(stats[COLOR]["mean"]).ravel(), decoded, atol=4.0 / 255)
+    assert stats["index"]["max"] == [n - 1] and stats["timestamp"]["min"] == [0.0]
+
+    # Not over a dataset, nor into a folder holding anything; fps a whole number.
+    assert main(["export-lerobot", str(moving.path), "--out", str(out)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert (
+        main(["export-lerobot", str(moving.path), "--out", str(tmp_path / "b"), "--fps", "7.5"])
+        == 2
+    )
+    assert "a whole number" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+
+
+def test_export_lerobot_starts_new_files_past_the_size_limits(
+    moving: Recorded, still: Recorded, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An episode that would take a data or video file past its limit starts the next file
+    (LeRobot's next file index), never split."""
+    import pyarrow.parquet as pq
+
+    from armvision.recording import lerobot
+
+    # Limits below one episode's size: 0.25 MB of rows (each episode's depth PNGs are more),
+    # and 0 for the video (an open mp4 shows on disk only what the encoder has flushed, none of
+    # a 2 s video; a real limit, 200 MB, is far above that lag).
+    monkeypatch.setattr(lerobot, "DATA_FILES_SIZE_IN_MB", 0.25)
+    monkeypatch.setattr(lerobot, "VIDEO_FILES_SIZE_IN_MB", 0)
+    out = tmp_path / "dataset"
+    info = lerobot.export_lerobot([moving.path, still.path], out)
+    assert (info["data_files_size_in_mb"], info["video_files_size_in_mb"]) == (0.25, 0)
+    episodes = pq.read_table(out / LEROBOT_EPISODES_PATH.format(chunk_index=0, file_index=0))
+    prefix = f"videos/{COLOR}/"
+    for e, record in enumerate(episodes.to_pylist()):
+        assert (record["data/chunk_index"], record["data/file_index"]) == (0, e)
+        assert (record[prefix + "chunk_index"], record[prefix + "file_index"]) == (0, e)
+        assert record[prefix + "from_timestamp"] == 0.0
+        data = pq.read_table(out / LEROBOT_DATA_PATH.format(chunk_index=0, file_index=e))
+        assert data.column("episode_index").to_pylist() == [e] * record["length"]
+        assert data.column("index").to_pylist() == list(
+            range(record["dataset_from_index"], record["dataset_to_index"])
+        )
+        video = out / LEROBOT_VIDEO_PATH.format(video_key=COLOR, chunk_index=0, file_index=e)
+        assert len(_video_frames(video)) == record["length"]
 
 
 def test_replay_of_a_missing_or_foreign_file_is_one_line(

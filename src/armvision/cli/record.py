@@ -171,17 +171,17 @@ def cmd_export_lerobot(args: argparse.Namespace, config: Config) -> int:
 
 
 def add_export_parser(sub: Any) -> None:
-    from armvision.cli.args import float_in, out_dir
+    from armvision.cli.args import int_in, out_dir
 
     export = sub.add_parser(
         "export-lerobot",
-        help="write recordings' task episodes as a LeRobot dataset (parquet, mp4, meta)",
+        help="write recordings' task episodes as a LeRobot v3.0 dataset (parquet, mp4, meta)",
     )
     export.add_argument("files", nargs="+", metavar="FILE.mcap", help="recordings armvision made")
     export.add_argument("--out", type=out_dir, required=True, metavar="DIR", help="a new folder")
     export.add_argument(
         "--fps",
-        type=float_in(0.0, 120.0, "frames a second above 0 and at most 120", True),
-        help="frames a second (default: the recording's camera rate)",
+        type=int_in(1, 120, "frames a second"),
+        help="frames a second, a whole number as LeRobot's (default: the recording's camera rate)",
     )
     export.set_defaults(func=cmd_export_lerobot)
