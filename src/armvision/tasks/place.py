@@ -43,13 +43,31 @@ from numpy.typing import NDArray
 
 from armvision.config import Config
 from armvision.fusion.tracker import TrackState
-from armvision.geometry import make_T, rpy_to_R
-from armvision.robot.kinematics import ArmModel
+from armvision.geometry import make_T, rot_z, rpy_to_R
+from armvision.robot.kinematics import ArmModel, fk, ik
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.planning_scene import Body, PlanningScene
-from armvision.tasks.carry import BACKOFF_MARGIN_M, EMPTY_MAX_PITCH_DEG, Abort, Carrier, Held
+from armvision.tasks.carry import (
+    BACKOFF_MARGIN_M,
+    CARRY_SPEED_M_S,
+    EMPTY_MAX_PITCH_DEG,
+    RELEASE_HEIGHT_M,
+    Abort,
+    Carrier,
+    Held,
+)
 from armvision.tasks.grab import GRASP_MARGIN_M, HOVER_CLEARANCE_M, GrabResult
-from armvision.tasks.motion import unflipped_ik
+from armvision.tasks.grasp_plan import (
+    CHECK_STEP_M as CHECK_STEP,
+)
+from armvision.tasks.grasp_plan import (
+    MAX_STEP_RAD,
+    Checker,
+    _Blocked,
+    _executed,
+    _straight,
+)
+from armvision.tasks.motion import SEGMENT_TIME_S, paced_time, unflipped_ik
 
 Array = NDArray[np.float64]
 
@@ -57,7 +75,7 @@ Array = NDArray[np.float64]
 #: beyond the ViperX-300s's reach with a bottle), m.
 TABLE_RADIUS_M = 0.7
 #: The zone's candidate spots: a grid of this pitch, m.
-ZONE_STEP_M = 0.01
+ZONE_STEP_M = 0.02
 #: After the release, the bottle's new track is looked for this far from the spot, m.
 FIND_M = 0.08
 #: Scene bodies and cells whose centre is this near the gripper (beyond the held bottle's
@@ -173,8 +191,11 @@ def spot_refusal(
     clearance: float,
     min_base_distance: float,
     model: ArmModel,
+    check_reach: bool = True,
 ) -> str | None:
-    """Why the bottle cannot be set down at ``xy`` (the module docstring's step 2), or None."""
+    """Why the bottle cannot be set down at ``xy`` (the module docstring's step 2), or None.
+    ``check_reach``: also whether the arm reaches it facing it from the base (before the
+    grasp; once it is held, :func:`plan_set_down` decides)."""
     d = float(np.linalg.norm(xy))
     where = f"({xy[0]:.3f}, {xy[1]:.3f}) m"
     if d > TABLE_RADIUS_M:
@@ -191,9 +212,24 @@ def spot_refusal(
             return f"the spot {where} is taken: {b.describe()} is there"
         if _strip_distance(q, back, xy) < FINGER_HALF_WIDTH_M + b.radius:
             return f"the fingers could not back off from {where}: {b.describe()} is in the way"
-    if not reachable(xy, held, model):
+    if check_reach and not reachable(xy, held, model):
         return f"the arm cannot reach the spot {where} to set the bottle down level"
     return None
+
+
+def zone_candidates(rect: tuple[float, float, float, float], radius: float) -> Array:
+    """Spots for a bottle of ``radius`` wholly inside ``rect``, a :data:`ZONE_STEP_M` grid,
+    from the rectangle's corner farthest from the base."""
+    x0, y0, x1, y1 = rect
+    r = radius
+    xs = np.arange(x0 + r, x1 - r + 1e-9, ZONE_STEP_M)
+    ys = np.arange(y0 + r, y1 - r + 1e-9, ZONE_STEP_M)
+    if not len(xs) or not len(ys):
+        return np.zeros((0, 2))
+    corners = np.array([[x0 + r, y0 + r], [x0 + r, y1 - r], [x1 - r, y0 + r], [x1 - r, y1 - r]])
+    far = corners[int(np.argmax(np.linalg.norm(corners, axis=1)))]
+    grid = np.array([(x, y) for x in xs for y in ys])
+    return grid[np.argsort(np.linalg.norm(grid - far, axis=1), kind="stable")]
 
 
 def zone_spot(
@@ -204,84 +240,254 @@ def zone_spot(
     min_base_distance: float,
     model: ArmModel,
 ) -> Array | None:
-    """A free spot (:func:`spot_refusal`) for the held bottle wholly inside ``rect``, the
-    first of the grid from the rectangle's corner farthest from the base; None if none."""
-    x0, y0, x1, y1 = rect
-    r = held.radius
-    xs = np.arange(x0 + r, x1 - r + 1e-9, ZONE_STEP_M)
-    ys = np.arange(y0 + r, y1 - r + 1e-9, ZONE_STEP_M)
-    if not len(xs) or not len(ys):
-        return None
-    corners = np.array([[x0 + r, y0 + r], [x0 + r, y1 - r], [x1 - r, y0 + r], [x1 - r, y1 - r]])
-    far = corners[int(np.argmax(np.linalg.norm(corners, axis=1)))]
-    grid = np.array([(x, y) for x in xs for y in ys])
-    for xy in grid[np.argsort(np.linalg.norm(grid - far, axis=1), kind="stable")]:
+    """The first of :func:`zone_candidates` free for the held bottle and reachable facing it
+    from the base (:func:`spot_refusal`); None if none."""
+    for xy in zone_candidates(rect, held.radius):
         if spot_refusal(xy, held, obstacles, clearance, min_base_distance, model) is None:
             return np.asarray(xy, dtype=float)
     return None
 
 
+#: Releasing, the fingertips (this far ahead of the gripper's point) back off until they are
+#: :data:`~armvision.tasks.carry.BACKOFF_MARGIN_M` clear of the bottle, m.
+FINGERTIP_AHEAD_M = 0.03
+#: Carrying, the gripper's turns about the vertical are tried in steps of this, degrees.
+TURN_STEP_DEG = 30
+#: Every configuration of the set-down keeps this clearance to the scene, m.
+SET_DOWN_CLEARANCE_M = 0.005
+
+
+@dataclass(frozen=True)
+class SetDown:
+    """The set-down's joint configurations, checked: ``carry`` (up to the carry height and
+    across, fingers closed), ``lower`` (straight down to the release height), ``back`` and
+    ``rise`` (fingers open: out the way the gripper came in, then up); each step's moves in
+    order, at most :data:`~armvision.tasks.grasp_plan.EXECUTE_STEP_M` apart."""
+
+    spot: Array
+    carry: tuple[Array, ...]
+    lower: tuple[Array, ...]
+    back: tuple[Array, ...]
+    rise: tuple[Array, ...]
+
+
+def _turning_line(
+    q_from: Array, p_from: Array, p_to: Array, R_from: Array, turn: float, model: ArmModel
+) -> list[Array]:
+    """Configurations every :data:`~armvision.tasks.grasp_plan.CHECK_STEP_M` (and 5 degrees
+    of turn) along the straight line ``p_from`` to ``p_to``, the gripper turning evenly by
+    ``turn`` about the vertical from ``R_from`` (a held bottle stays upright), each near the
+    one before; _Blocked if one is unreachable or jumps."""
+    length = float(np.linalg.norm(p_to - p_from))
+    n = max(1, math.ceil(length / CHECK_STEP), math.ceil(abs(turn) / math.radians(5.0)))
+    out = [q_from]
+    for k in range(1, n + 1):
+        s = k / n
+        T = make_T(rot_z(s * turn) @ R_from, p_from + s * (p_to - p_from))
+        q, ok = ik(T, out[-1], model)
+        if not ok or float(np.max(np.abs(q - out[-1]))) > MAX_STEP_RAD:
+            raise _Blocked("out of reach")
+        out.append(q)
+    return out
+
+
+def _turns(yaw_now: float, spot: Array) -> list[float]:
+    """Turns to try while carrying: facing the spot from the base first, none, then every
+    :data:`TURN_STEP_DEG` by nearness to the first."""
+    facing = math.atan2(spot[1], spot[0])
+    first = (facing - yaw_now + math.pi) % (2 * math.pi) - math.pi
+    steps = [math.radians(d) for d in range(-180 + TURN_STEP_DEG, 180, TURN_STEP_DEG)]
+    rest = sorted(steps, key=lambda t: abs((t - first + math.pi) % (2 * math.pi) - math.pi))
+    return [first, 0.0, *rest]
+
+
+def plan_set_down(
+    q_now: Array,
+    T_now: Array,
+    spot: Array,
+    held: Held,
+    scene: PlanningScene,
+    finger_closed: float,
+    model: ArmModel,
+) -> SetDown | str:
+    """The set-down at ``spot`` from the arm at ``q_now`` (pose ``T_now``, holding the bottle),
+    or why not: straight up to the carry height, straight across while turning about the
+    vertical (the bottle stays upright; the collision-aware grasp may have come from any side,
+    so the turns of :func:`_turns` are tried until one keeps the arm on one IK branch),
+    straight down, open, back along the gripper's own axis, up. Every configuration is
+    checked against ``scene`` (the held bottle left out)."""
+    R0 = T_now[:3, :3]
+    p0 = T_now[:3, 3]
+    carry_z = max(held.carry_z, float(p0[2]))
+    release_z = held.grasp_z + RELEASE_HEIGHT_M
+    p_up = np.array([p0[0], p0[1], carry_z])
+    p_above = np.array([spot[0], spot[1], carry_z])
+    p_release = np.array([spot[0], spot[1], release_z])
+    top = held.table_z + held.height + HOVER_CLEARANCE_M
+    where = f"({spot[0]:.3f}, {spot[1]:.3f}) m"
+    check = Checker(scene, None, model)
+    opened = model.finger_limits[1]
+    why = f"the arm cannot carry the bottle, held as it is, to {where}"
+    options = [
+        (turn, during_lift)
+        for turn in _turns(math.atan2(R0[1, 0], R0[0, 0]), spot)
+        for during_lift in (False, True)
+        if not (during_lift and turn == 0.0)
+    ]
+    # Never ask more of the carry than its start has (a neighbour's track swells while the
+    # arm hides it), as the grasp's transit does.
+    start_clearance, _ = check.least(q_now[None, :], finger_closed)
+    carry_needed = min(SET_DOWN_CLEARANCE_M, max(start_clearance - 0.002, 0.0))
+    for turn, during_lift in options:
+        R = rot_z(turn) @ R0
+        u = np.array([R[0, 0], R[1, 0], 0.0])
+        u /= max(float(np.linalg.norm(u)), 1e-9)
+        p_back = p_release - (held.radius + BACKOFF_MARGIN_M + FINGERTIP_AHEAD_M) * u
+        p_rise = np.array([p_back[0], p_back[1], max(top, release_z)])
+        lift_turn = turn if during_lift else 0.0
+        try:
+            up = _turning_line(q_now, p0, p_up, R0, lift_turn, model)
+            across = _turning_line(
+                up[-1], p_up, p_above, rot_z(lift_turn) @ R0, turn - lift_turn, model
+            )
+            down = _straight(across[-1], p_above, p_release, R, model)
+            back = _straight(down[-1], p_release, p_back, R, model)
+            rise = _straight(back[-1], p_back, p_rise, R, model)
+        except _Blocked:
+            continue
+        hit = None
+        for what, qs, finger, needed in (
+            ("carrying it", up + across, finger_closed, carry_needed),
+            ("lowering it", down, finger_closed, SET_DOWN_CLEARANCE_M),
+            ("backing off", back, opened, SET_DOWN_CLEARANCE_M),
+            ("rising", rise, opened, SET_DOWN_CLEARANCE_M),
+        ):
+            clearance, thing = check.least(np.array(qs), finger)
+            if clearance < needed:
+                hit = f"{what} to {where} the arm would hit {thing}"
+                break
+        if hit is not None:
+            why = hit
+            continue
+        return SetDown(
+            spot,
+            _executed(up, float(carry_z - p0[2]))
+            + _executed(across, max(float(np.linalg.norm(p_above - p_up)), 0.01)),
+            _executed(down, float(carry_z - release_z)),
+            _executed(back, float(np.linalg.norm(p_back - p_release))),
+            _executed(rise, float(p_rise[2] - p_back[2])),
+        )
+    return why
+
+
 class Placer:
-    """Sets the held bottle down with a :class:`Carrier` and checks where it stands."""
+    """Plans and makes the set-down of the held bottle, and checks where it stands."""
 
-    def __init__(self, ctx: TaskContext, carrier: Carrier, held_track: int | None) -> None:
-        self.ctx, self.carrier, self.held_track = ctx, carrier, held_track
+    def __init__(self, ctx: TaskContext, held: Held, held_track: int | None) -> None:
+        self.ctx, self.held, self.held_track = ctx, held, held_track
         self.start = ctx.now()
+        self.where = "held by the gripper"
 
-    def obstacles(self) -> list[Body]:
-        held = self.carrier.held
-        assert held is not None
+    def scene(self) -> tuple[PlanningScene, list[Body]]:
+        """The planning scene without the held bottle, and its obstacles."""
         grip = np.asarray(self.ctx.arm.get_ee_pose(), dtype=float)[:2, 3]
-        return held_obstacles(self.ctx.state().planning_scene, self.held_track, grip, held.radius)
+        full = self.ctx.state().planning_scene
+        obstacles = held_obstacles(full, self.held_track, grip, self.held.radius)
+        bodies = tuple(b for b in obstacles if b.track_id is not None)
+        cells = tuple(b for b in obstacles if b.track_id is None)
+        return PlanningScene(full.table_z, bodies, cells, full.arm), obstacles
 
-    def choose(self, x: float | None, y: float | None, zone: str | None) -> Array:
-        """The spot to set the bottle down; PlaceError (nothing moved) if there is none."""
+    def plan(
+        self, xy: Array, scene: PlanningScene, obstacles: list[Body], footprint: bool = True
+    ) -> SetDown | str:
+        """The set-down at ``xy`` or why not; ``footprint`` False: the spot is not checked
+        for room (putting the bottle back where it stood)."""
         ctx, cfg = self.ctx, self.ctx.config.place
-        held = self.carrier.held
-        assert held is not None
-        model, min_d = ctx.arm.model, ctx.config.grab.min_base_distance
+        why = (
+            None
+            if not footprint
+            else spot_refusal(
+                xy,
+                self.held,
+                obstacles,
+                cfg.clearance,
+                ctx.config.grab.min_base_distance,
+                ctx.arm.model,
+                check_reach=False,
+            )
+        )
+        if why is not None:
+            return why
+        q_now = np.asarray(ctx.arm.get_joint_positions(), dtype=float)
+        T_now = fk(q_now, ctx.arm.model)
+        finger = float(ctx.arm.gripper.get_finger_position())
+        return plan_set_down(q_now, T_now, xy, self.held, scene, finger, ctx.arm.model)
+
+    def choose(
+        self, x: float | None, y: float | None, zone: str | None, footprint: bool = True
+    ) -> SetDown:
+        """The set-down to make; PlaceError (nothing moved) if there is none."""
+        scene, obstacles = self.scene()
         if zone is not None:
-            rect = zone_rect(ctx.config, zone)
-            spot = zone_spot(rect, held, self.obstacles(), cfg.clearance, min_d, model)
-            if spot is None:
-                raise PlaceError(
-                    f"zone {zone!r} has no free spot the arm reaches for a bottle of radius "
-                    f"{100 * held.radius:.1f} cm"
-                )
-            return spot
+            x0, y0, x1, y1 = zone_rect(self.ctx.config, zone)
+            last = "no spot fits"
+            for xy in zone_candidates((x0, y0, x1, y1), self.held.radius):
+                found = self.plan(xy, scene, obstacles)
+                if isinstance(found, SetDown):
+                    return found
+                last = found
+            raise PlaceError(
+                f"zone {zone!r} has no free spot the arm can set this bottle down on "
+                f"(radius {100 * self.held.radius:.1f} cm; last: {last})"
+            )
         if x is None or y is None:
             raise PlaceError("say where: place(x, y) in metres, or place(zone=NAME)")
         xy = np.array([float(x), float(y)])
         if not np.all(np.isfinite(xy)):
             raise PlaceError(f"the spot ({x}, {y}) is not a finite position in metres")
-        why = spot_refusal(xy, held, self.obstacles(), cfg.clearance, min_d, model)
-        if why is not None:
-            raise PlaceError(why)
-        return xy
+        found = self.plan(xy, scene, obstacles, footprint)
+        if isinstance(found, str):
+            raise PlaceError(found)
+        return found
 
-    def set_down(self, spot: Array, zone: str | None) -> PlaceResult:
-        """Carry, stand, release, retreat, go to the safe pose, then check (module doc)."""
-        ctx, carrier = self.ctx, self.carrier
-        if carrier.T_base_ee_last is None:
-            carrier.T_base_ee_last = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
+    def run(self, what: str, qs: tuple[Array, ...], speed: float = CARRY_SPEED_M_S) -> None:
+        """Move through ``qs`` (near-straight moves), each paced within the joint limits."""
+        ctx = self.ctx
+        model = ctx.arm.model
+        for q in qs:
+            T_prev = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
+            length = float(np.linalg.norm(fk(q, model)[:3, 3] - T_prev[:3, 3]))
+            duration = paced_time(ctx.arm, q, max(SEGMENT_TIME_S, length / speed))
+            if not ctx.move_joints(q, moving_time=duration):
+                raise Abort(f"{what}: {ctx.arm.last_error or 'the arm refused the move'}")
+
+    def set_down(self, plan: SetDown, zone: str | None) -> PlaceResult:
+        """Carry, stand, release, back off, go to the safe pose, then check (module doc)."""
+        ctx = self.ctx
+        spot = plan.spot
         asked = (float(spot[0]), float(spot[1]))
         where = f"({asked[0]:.3f}, {asked[1]:.3f}) m" + ("" if zone is None else f" in {zone!r}")
         ctx.progress(0.3, f"carrying the bottle to {where}")
         try:
-            carrier.put_down(spot, f"standing at {where}")
+            self.run("carry", plan.carry)
+            self.run("lower onto the table", plan.lower)
+            ctx.open_gripper()
+            self.where = f"standing at {where}"
+            self.run("back off", plan.back)
+            self.run("rise", plan.rise)
+            carrier = Carrier(ctx, ctx.config.grab)
             carrier.go_safe()
         except Abort as exc:
-            released = carrier.where.startswith("standing")
+            released = self.where.startswith("standing")
             return self.result(
-                False, f"{exc}; the bottle is {carrier.where}", zone, asked, released=released
+                False, f"{exc}; the bottle is {self.where}", zone, asked, released=released
             )
         ctx.progress(0.85, f"checking the bottle stands at {where}")
         return self.verify(spot, zone, where)
 
     def verify(self, spot: Array, zone: str | None, where: str) -> PlaceResult:
         ctx, cfg = self.ctx, self.ctx.config.place
-        held = self.carrier.held
-        assert held is not None
+        held = self.held
         since = ctx.now()
 
         def found() -> TrackState | None:
@@ -423,9 +629,6 @@ def place(
         zone_rect(ctx.config, zone)  # an unknown zone fails before anything else
     ctx.require_aim()
     held, track_id = held_from_last_grab(ctx)
-    carrier = Carrier(ctx, ctx.config.grab)
-    carrier.held = held
-    carrier.where = "held by the gripper"
-    placer = Placer(ctx, carrier, track_id)
-    spot = placer.choose(x, y, zone)
-    return placer.set_down(spot, zone)
+    placer = Placer(ctx, held, track_id)
+    plan = placer.choose(x, y, zone)
+    return placer.set_down(plan, zone)
