@@ -336,7 +336,10 @@ def plan_set_down(
     ]
     # Never ask more of the carry than its start has (a neighbour's track swells while the
     # arm hides it), as the grasp's transit does.
+    # The lift starts where the grasp left the arm, which the grasp checked; a track the arm
+    # now hides may have swollen around it, so the lift only has to get no nearer than that.
     start_clearance, _ = check.least(q_now[None, :], finger_closed)
+    lift_needed = min(SET_DOWN_CLEARANCE_M, start_clearance - 0.002)
     carry_needed = min(SET_DOWN_CLEARANCE_M, max(start_clearance - 0.002, 0.0))
     for turn, during_lift in options:
         R = rot_z(turn) @ R0
@@ -357,14 +360,18 @@ def plan_set_down(
             continue
         hit = None
         for what, qs, finger, needed in (
-            ("carrying it", up + across, finger_closed, carry_needed),
+            ("lifting it", up, finger_closed, lift_needed),
+            ("carrying it", across, finger_closed, carry_needed),
             ("lowering it", down, finger_closed, SET_DOWN_CLEARANCE_M),
             ("backing off", back, opened, SET_DOWN_CLEARANCE_M),
             ("rising", rise, opened, SET_DOWN_CLEARANCE_M),
         ):
             clearance, thing = check.least(np.array(qs), finger)
             if clearance < needed:
-                hit = f"{what} to {where} the arm would hit {thing}"
+                hit = (
+                    f"{what} to {where} the arm would come within {1000 * clearance:.0f} mm "
+                    f"of {thing}"
+                )
                 break
         if hit is not None:
             why = hit
@@ -383,15 +390,24 @@ def plan_set_down(
 class Placer:
     """Plans and makes the set-down of the held bottle, and checks where it stands."""
 
-    def __init__(self, ctx: TaskContext, held: Held, held_track: int | None) -> None:
+    def __init__(
+        self,
+        ctx: TaskContext,
+        held: Held,
+        held_track: int | None,
+        scene: PlanningScene | None = None,
+    ) -> None:
+        """``scene``: plan against this one (the scene before the grasp, whose tracks the
+        arm did not hide) instead of the current one."""
         self.ctx, self.held, self.held_track = ctx, held, held_track
+        self.base_scene = scene
         self.start = ctx.now()
         self.where = "held by the gripper"
 
     def scene(self) -> tuple[PlanningScene, list[Body]]:
         """The planning scene without the held bottle, and its obstacles."""
         grip = np.asarray(self.ctx.arm.get_ee_pose(), dtype=float)[:2, 3]
-        full = self.ctx.state().planning_scene
+        full = self.base_scene or self.ctx.state().planning_scene
         obstacles = held_obstacles(full, self.held_track, grip, self.held.radius)
         bodies = tuple(b for b in obstacles if b.track_id is not None)
         cells = tuple(b for b in obstacles if b.track_id is None)

@@ -251,6 +251,9 @@ class _Sort:
             report = BottleReport(track.id, (float(track.p_base[0]), float(track.p_base[1])))
             self.reports.append(report)
             self.handle(track, report)
+            if report.action == "failed" and holding(ctx):
+                report.reason += "; the sort ends here, the bottle still in the gripper"
+                break
         return self.result()
 
     def progress(self, step: float, message: str) -> None:
@@ -285,6 +288,7 @@ class _Sort:
             report.reason = f"{why}, but zone {zone!r} has no free spot for it"
             return
         self.progress(0.5, f"bottle {len(self.reports)}: {why}, taking it to {zone!r}")
+        before = ctx.state().planning_scene  # its neighbours, before the arm hides them
         grabbed = grab(ctx, track_id=now.id)
         if not grabbed.ok:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
@@ -295,7 +299,7 @@ class _Sort:
         tops = [b.top for b in state.planning_scene.obstacles(now.id)]
         finger = float(ctx.arm.gripper.get_finger_position())
         held = Held.from_grab(grabbed, finger, now, tops, ctx.config.grab)
-        placer = Placer(ctx, held, now.id)
+        placer = Placer(ctx, held, now.id, before)
         try:
             plan = placer.choose(None, None, zone)
         except PlaceError as exc:
