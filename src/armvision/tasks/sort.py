@@ -164,10 +164,12 @@ class BottleReport:
     colour_name: str | None = None
     zone: str | None = None
     place: dict[str, Any] | None = None
+    picked: bool = False  # the analysis picked it to present it (and put it back)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "track_id": self.track_id,
+            "picked": self.picked,
             "start": [round(v, 4) for v in self.start],
             "action": self.action,
             "reason": self.reason,
@@ -265,6 +267,7 @@ class _Sort:
         self.progress(0.0, f"bottle {len(self.reports)} (track {track.id}): measuring it")
         measured = analyze(ctx, track_id=track.id)
         report.fill, report.colour_name = measured.fill, measured.colour_name
+        report.picked = measured.picked
         if not measured.ok:
             report.reason = f"not measured: {measured.reason}"
             if measured.picked and holding(ctx):
