@@ -600,7 +600,7 @@ def held_from_last_grab(ctx: TaskContext) -> tuple[Held, int | None]:
         ok=True,
         reason=str(result.get("reason", "")),
         track_id=result.get("track_id"),
-        target=tuple(result["target"]),  # type: ignore[arg-type]
+        target=tuple(result["target"]),
         height=result.get("height"),
         grasp_z=result.get("grasp_z"),
         finger=result.get("finger"),
