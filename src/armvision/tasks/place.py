@@ -7,20 +7,23 @@
    something: between the empty-closed gap plus :data:`~armvision.tasks.grab.GRASP_MARGIN_M`
    and the open gap; otherwise it fails with "nothing is held" and nothing moves.
 2. **The spot.** ``(x, y)``: that spot; ``zone``: a free spot inside the named rectangle of
-   ``place.zones`` (the bottle's footprint wholly inside it), the candidates of a 1 cm grid
-   tried from the zone's corner farthest from the base, so bottles set down one after the
-   other fill the zone from the back. A spot is free (:func:`spot_refusal`) when the bottle's
-   footprint keeps ``place.clearance`` to every body and occupied cell of the planning scene
-   (but the held bottle itself, and whatever is within reach of the fingers: the bottle seen
-   in the gripper), the fingers' short back-off strip toward the base is clear as well, it lies
-   within :data:`TABLE_RADIUS_M` of the base axis and beyond ``grab.min_base_distance``, and
-   the arm reaches every pose of the set-down level (the gripper facing the spot from the
-   base), wrist unflipped. All of it is decided before the arm moves: a spot off the table,
-   taken or out of reach, an unknown zone, a full zone give a one-line reason and no motion.
-3. **Setting down** (:meth:`Carrier.put_down <armvision.tasks.carry.Carrier.put_down>`, the
-   analyze task's carrying moves): up to the carry height above everything on the table,
-   level across to above the spot, straight down, open, back off toward the base and rise,
-   then to the grasp's safe start pose, out of the camera's view.
+   ``place.zones`` (the bottle's footprint wholly inside it), the candidates of a
+   :data:`ZONE_STEP_M` grid tried from the zone's corner farthest from the base, so bottles
+   set down one after the other fill the zone from the back. A spot is free
+   (:func:`spot_refusal`) when the bottle's footprint keeps ``place.clearance`` to every body
+   and occupied cell of the planning scene (but the held bottle itself: its track, and
+   whatever stands within reach of the fingers, the bottle seen in the gripper), the fingers'
+   short way out toward the base is clear, and it lies within :data:`TABLE_RADIUS_M` of the
+   base axis and beyond ``grab.min_base_distance``.
+3. **The set-down** (:func:`plan_set_down`), planned whole before anything moves: straight up
+   to the carry height (above everything on the table, :class:`~armvision.tasks.carry.Held`),
+   straight across to above the spot while turning about the vertical only (the bottle stays
+   upright whichever side the collision-aware grasp came from), straight down to the release
+   height, open, back out along the gripper's own axis, up; every configuration checked
+   against the planning scene as the grasp's are. Then to the grasp's safe start pose, out
+   of the camera's view (:meth:`Carrier.go_safe <armvision.tasks.carry.Carrier.go_safe>`).
+   A spot off the table, taken or out of reach, an unknown zone, a full zone give a one-line
+   reason and no motion.
 4. **The check.** Within ``place.verify_s`` the bottle must be tracked again (a bottle track
    seen since the release within :data:`FIND_M` of the spot): ``placed`` is its tracked
    (x, y), ``error_m`` its distance to the asked spot, ``upright`` whether its tracked
