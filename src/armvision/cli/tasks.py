@@ -171,12 +171,24 @@ def cmd_place(args: argparse.Namespace, config: Config) -> int:
 
 
 def cmd_sort(args: argparse.Namespace, config: Config) -> int:
-    from armvision.tasks.sort import sort
+    from armvision.tasks.sort import SortRule, sort
 
     rule: dict[str, Any] | None = None
     if args.threshold is not None:
         rule = {"threshold": args.threshold}
-    return _run(args, config, "sort", sort, by=args.by, rule=rule)
+    if args.colours is not None:
+        rule = {}
+        for part in args.colours.split(","):
+            name, sep, zone = part.partition("=")
+            if not sep or not name.strip() or not zone.strip():
+                raise ArmvisionError(
+                    f"--colours {args.colours!r}: write NAME=ZONE pairs, e.g. "
+                    "'light blue=empty,*=full'"
+                )
+            rule[name.strip()] = zone.strip()
+    by = args.by or ("colour" if args.colours is not None else None)
+    SortRule.make(config, by, rule)  # a bad rule fails before the system is built
+    return _run(args, config, "sort", sort, by=by, rule=rule)
 
 
 def cmd_follow(args: argparse.Namespace, config: Config) -> int:
@@ -306,6 +318,11 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     sort.add_argument("--by", choices=("fill", "colour"), help="default sort.by (fill)")
     sort.add_argument(
         "--threshold", type=float, help="fill 0..1 below which a bottle goes to sort.below"
+    )
+    sort.add_argument(
+        "--colours",
+        metavar="NAME=ZONE,...",
+        help="by colour: colour name to zone, '*' for any other (default sort.colours)",
     )
     add_record_option(sort)
     sort.set_defaults(func=cmd_sort)
