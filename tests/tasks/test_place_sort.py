@@ -252,3 +252,14 @@ def test_stop_during_a_sort_ends_it_at_once_and_the_arm_holds_still() -> None:
         # Nothing moved: the stop came while the first bottle was being measured in place.
         bottle = next(o for o in system.world.objects() if o.spec.name == "bottle")
         assert math.dist(bottle.T_base_obj[:2, 3], (BOTTLE.x, BOTTLE.y)) < 0.005
+
+
+def test_a_second_track_inside_the_excluded_one_is_the_same_object() -> None:
+    from armvision.runtime.planning_scene import PlanningScene
+
+    target = Body((0.40, 0.10), 0.035, 0.0, 0.2, "bottle", 1)
+    twin = Body((0.385, 0.105), 0.04, 0.0, 0.2, "bottle", 7)  # 1.6 cm off: inside it
+    neighbour = Body((0.40, 0.175), 0.035, 0.0, 0.2, "bottle", 2)  # 1 cm gap: a real one
+    scene = PlanningScene(0.0, (target, twin, neighbour), ())
+    assert [b.track_id for b in scene.obstacles(1)] == [2]
+    assert [b.track_id for b in scene.obstacles(None)] == [1, 7, 2]
