@@ -118,6 +118,7 @@ def run_trial(
                     "tracked_error_m": rep["place"].get("error_m"),
                 }
             )
+        taken |= {p["name"] for p in placements}  # what it set down was taken, whatever report
         alone = _unattended(config, scene_seed, world.time)
         collateral = []
         for name, o in objects.items():
