@@ -148,3 +148,18 @@ def test_calibrate_checks_its_output_folder_before_moving_the_arm(capsys, tmp_pa
     line = fails(capsys, "calibrate", "--sim", "--out", str(blocker / "calibration.json"))
     assert "the calibration's folder" in line and "cannot write there" in line
     assert time.monotonic() - start < 5.0  # refused before the (30 s) sampling started
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["place", "--sim", "--zone", "nope"], "no zone 'nope' in place.zones"),
+        (["place", "--sim", "--zone", "full", "--x", "0.2"], "not both"),
+        (["place", "--sim", "--x", "0.2"], "say where"),
+        (["sort", "--sim", "--by", "colour"], "sorting by colour needs a rule"),
+        (["sort", "--sim", "--colours", "teal=full"], "unknown colour name 'teal'"),
+        (["sort", "--sim", "--threshold", "2"], "between 0 and 1"),
+    ],
+)
+def test_place_and_sort_refuse_bad_input_before_building_a_system(argv, message, capsys):
+    assert message in fails(capsys, *argv)

@@ -30,6 +30,7 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 from pydantic.dataclasses import dataclass
 from pydantic_core import ErrorDetails
@@ -259,12 +260,14 @@ class SimConfig:
     the ``*_jitter`` ranges (plus, minus); the jittered distance stays beyond 0.3 m and the
     jittered height above the table top.
 
-    ``profile`` picks the scenes: ``"default"`` (1-4 bottles and cups, well apart) or
+    ``profile`` picks the scenes: ``"default"`` (1-4 bottles and cups, well apart),
     ``"cluttered"`` (more objects close together, partly hidden, with distractors that are
-    neither bottle nor cup, and more bottle and cup families), the harder bench.
+    neither bottle nor cup, and more bottle and cup families), the harder bench, or
+    ``"sort"`` (2-4 bottles whose liquid shows, with fills on both sides of
+    ``sort.fill_threshold``, among distractors, clear of the ``place.zones``: the sorting bench).
     """
 
-    profile: Literal["default", "cluttered"] = "default"
+    profile: Literal["default", "cluttered", "sort"] = "default"
     camera_distance: Annotated[Float, Field(gt=0.3, le=3.0)] = 1.0
     camera_azimuth_deg: Annotated[Float, Field(ge=-180.0, le=180.0)] = 0.0
     camera_height: Annotated[Float, Field(ge=0.0, le=2.0)] = 0.45
@@ -308,9 +311,9 @@ class SimConfig:
 
     @property
     def camera_effects_on(self) -> bool:
-        """``camera_effects``, or for None whether the profile is the cluttered one."""
+        """``camera_effects``, or for None whether the profile is a cluttered one."""
         if self.camera_effects is None:
-            return self.profile == "cluttered"
+            return self.profile in ("cluttered", "sort")
         return self.camera_effects
 
     @field_validator("clear_wrong")
@@ -625,6 +628,72 @@ class PerceptionConfig:
         return model
 
 
+#: A zone's rectangle on the table: (x_min, y_min, x_max, y_max), base frame, metres.
+ZoneRect = tuple[
+    Annotated[Float, Field(ge=-1.0, le=1.0)],
+    Annotated[Float, Field(ge=-1.0, le=1.0)],
+    Annotated[Float, Field(ge=-1.0, le=1.0)],
+    Annotated[Float, Field(ge=-1.0, le=1.0)],
+]
+ZoneName = Annotated[
+    str, Strict(), StringConstraints(min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_-]+$")
+]
+#: Zones on the simulated bench, either side of where its objects stand (reachable, in view).
+DEFAULT_ZONES: dict[str, tuple[float, float, float, float]] = {
+    "empty": (0.10, -0.38, 0.30, -0.22),
+    "full": (0.10, 0.22, 0.30, 0.38),
+}
+
+
+@dataclass(config=_STRICT)
+class PlaceConfig:
+    """Setting a held bottle down (armvision.tasks.place).
+
+    ``zones``: named rectangles on the table, ``[x_min, y_min, x_max, y_max]`` in the base
+    frame (metres; TOML ``[place.zones]`` with ``empty = [0.10, -0.38, 0.30, -0.22]``); a zone
+    must be at least 8 cm each way (room for a bottle). A spot is free when it keeps
+    ``clearance`` m to every other object of the planning scene. Afterwards the bottle must be
+    tracked within ``tolerance`` m of the asked spot, standing (its tracked height within
+    ``height_tolerance`` of the held bottle's), seen within ``verify_s`` seconds.
+    """
+
+    zones: dict[ZoneName, ZoneRect] = dataclasses.field(default_factory=lambda: dict(DEFAULT_ZONES))
+    clearance: Annotated[Float, Field(ge=0.0, le=0.2)] = 0.03
+    tolerance: Annotated[Float, Field(gt=0.0, le=0.2)] = 0.02
+    height_tolerance: Annotated[Float, Field(gt=0.0, le=1.0)] = 0.3
+    verify_s: Seconds = 3.0
+
+    @field_validator("zones")
+    @classmethod
+    def _zones(
+        cls, zones: dict[str, tuple[float, float, float, float]]
+    ) -> dict[str, tuple[float, float, float, float]]:
+        for name, (x0, y0, x1, y1) in zones.items():
+            if x1 - x0 < 0.08 or y1 - y0 < 0.08:
+                raise ValueError(
+                    f"zone {name!r} must be [x_min, y_min, x_max, y_max] with each side at "
+                    f"least 0.08 m, not {[x0, y0, x1, y1]}"
+                )
+        return zones
+
+
+@dataclass(config=_STRICT)
+class SortConfig:
+    """Sorting the bottles on the table into zones (armvision.tasks.sort).
+
+    ``by = "fill"``: a bottle measured below ``fill_threshold`` (0..1 of its body) goes to the
+    zone ``below``, any other to ``above``. ``by = "colour"``: to the zone ``colours`` maps its
+    liquid's colour name to (:data:`armvision.tasks.colour.COLOUR_PALETTE`; ``"*"`` for any
+    other colour); a colour without a zone is skipped. Zone names are ``place.zones``'.
+    """
+
+    by: Literal["fill", "colour"] = "fill"
+    fill_threshold: Annotated[Float, Field(gt=0.0, lt=1.0)] = 0.3
+    below: ZoneName = "empty"
+    above: ZoneName = "full"
+    colours: dict[ZoneName | Literal["*"], ZoneName] = dataclasses.field(default_factory=dict)
+
+
 def _token_text(token: str) -> str:
     if any(c.isspace() for c in token):
         raise ValueError("must not hold spaces or other whitespace")
@@ -706,6 +775,22 @@ class Config:
     grab: GrabConfig = dataclasses.field(default_factory=GrabConfig)
     follow: FollowConfig = dataclasses.field(default_factory=FollowConfig)
     analyze: AnalyzeConfig = dataclasses.field(default_factory=AnalyzeConfig)
+    place: PlaceConfig = dataclasses.field(default_factory=PlaceConfig)
+    sort: SortConfig = dataclasses.field(default_factory=SortConfig)
+
+    @model_validator(mode="after")
+    def _sort_zones_exist(self) -> Config:
+        zones = self.place.zones
+        named = [("sort.below", self.sort.below), ("sort.above", self.sort.above)]
+        named += [(f"sort.colours.{k}", v) for k, v in self.sort.colours.items()]
+        for key, zone in named:
+            if zone not in zones:
+                raise ValueError(
+                    f"{key} names zone {zone!r}, which place.zones does not define "
+                    f"(zones: {', '.join(sorted(zones)) or 'none'})"
+                )
+        return self
+
     perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
     ui: UIConfig = dataclasses.field(default_factory=UIConfig)
     record: RecordConfig = dataclasses.field(default_factory=RecordConfig)

@@ -305,6 +305,43 @@ def test_another_site_cannot_drive_the_arm(
     assert np.max(np.abs(np.degrees(world.joint_positions()))) < 1.0  # home, says the simulator
 
 
+def _in_zone(ui: RunningUI, name: str, zone: str) -> bool:
+    x0, y0, x1, y1 = ui.system.config.place.zones[zone]
+    x, y = ui.system.world.T_base_object(name)[:2, 3]
+    return bool(x0 <= x <= x1 and y0 <= y <= y1)
+
+
+def _upright(ui: RunningUI, name: str) -> bool:
+    return next(o for o in ui.system.world.objects() if o.spec.name == name).upright
+
+
+def test_stop_during_a_sort_halts_the_arm(page: Page, ui: RunningUI) -> None:
+    expect(page.locator("#zone-select option")).to_have_count(2)  # the zones from the state
+    page.locator("#btn-sort").click()
+    expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)
+    expect(page.locator("#task-message")).to_contain_text("measuring", timeout=30_000)
+    expect(page.locator("#btn-place")).to_be_disabled()
+    page.locator("#btn-stop").click()
+    expect(page.locator("#task-phase")).to_have_text("stopped", timeout=3_000)
+    world = ui.system.world
+    q = world.joint_positions()
+    time.sleep(0.5)
+    assert np.max(np.abs(world.joint_positions() - q)) < 0.02  # the arm holds still
+    assert world.held_object() is None
+
+
+def test_sort_runs_to_completion(page: Page, ui: RunningUI, shots: Path) -> None:
+    # The bench's bottle is 60 % full: the default rule (below 30 % empty) takes it to "full".
+    page.locator("#sort-by").select_option("fill")
+    page.locator("#btn-sort").click()
+    expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)
+    expect(page.locator("#task-phase")).to_have_text("succeeded", timeout=300_000)
+    expect(page.locator("#task-result")).to_contain_text("placed")
+    assert _in_zone(ui, "bottle", "full") and _upright(ui, "bottle")
+    assert ui.system.world.held_object() is None
+    page.screenshot(path=str(shots / "ui-after-sort.png"))
+
+
 def test_grab_bottle_succeeds(page: Page, ui: RunningUI, shots: Path) -> None:
     world = ui.system.world
     z0 = world.T_base_object("bottle")[2, 3]
@@ -324,3 +361,13 @@ def test_grab_bottle_succeeds(page: Page, ui: RunningUI, shots: Path) -> None:
     expect(page.locator("#task-result")).to_contain_text("track")
     page.screenshot(path=str(shots / "ui-after-grab.png"))
     assert (shots / "ui-grab.png").stat().st_size > 10_000
+
+
+def test_place_sets_the_held_bottle_down_in_the_chosen_zone(page: Page, ui: RunningUI) -> None:
+    assert ui.system.world.held_object() == "bottle"  # from the grab above
+    page.locator("#zone-select").select_option("empty")
+    page.locator("#btn-place").click()
+    expect(page.locator("#task-phase")).to_have_text("running", timeout=5_000)
+    expect(page.locator("#task-phase")).to_have_text("succeeded", timeout=120_000)
+    assert _in_zone(ui, "bottle", "empty") and _upright(ui, "bottle")
+    assert ui.system.world.held_object() is None

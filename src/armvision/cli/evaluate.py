@@ -124,6 +124,36 @@ def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
     return 0
 
 
+def cmd_eval_sort(args: argparse.Namespace, config: Config) -> int:
+    from armvision.eval.sort import evaluate_sort
+
+    def progress(done: int, total: int, row: dict[str, Any]) -> None:
+        right = sum(b["right"] for b in row["bottles"])
+        verdict = f"{right}/{len(row['bottles'])} bottles in the right zone"
+        if row["collateral"]:
+            verdict += f", disturbed {', '.join(c['name'] for c in row['collateral'])}"
+        _say(f"trial {done}/{total}, scene {row['seed']}: {verdict}")
+
+    result = evaluate_sort(
+        config,
+        args.trials,
+        args.seed,
+        args.calibration,
+        args.jobs,
+        None if args.json else progress,
+    )
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    _print_summary(f"sort, {args.trials} sort scenes from seed {args.seed}", result["summary"])
+    for b in result["wrong"]:
+        print(
+            f"  scene {b['seed']} {b['name']} ({b['kind']}, fill {100 * b['true_fill']:.0f} %, "
+            f"wants {b['want_zone']}): {b['action']}: {b['reason']}"
+        )
+    return 0
+
+
 def cmd_eval_follow(args: argparse.Namespace, config: Config) -> int:
     from armvision.eval.follow import evaluate_follow
 

@@ -24,9 +24,10 @@ from armvision.cli.args import (
     track_id,
     writable_dir,
 )
-from armvision.cli.evaluate import cmd_eval_follow, cmd_eval_grab
+from armvision.cli.evaluate import cmd_eval_follow, cmd_eval_grab, cmd_eval_sort
 from armvision.cli.record import add_record_option, finish_recording, record_system
 from armvision.config import Config
+from armvision.errors import ArmvisionError
 
 if TYPE_CHECKING:
     from armvision.runtime.system import System
@@ -72,7 +73,15 @@ def _system(args: argparse.Namespace, config: Config):
     return sim_system(config, args.seed, mode=mode, calibration=calibration)
 
 
-def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any) -> int:
+def _run(
+    args: argparse.Namespace,
+    config: Config,
+    name: str,
+    fn,
+    before: tuple[str, Any, dict[str, Any]] | None = None,
+    **kwargs: Any,
+) -> int:
+    """Run task ``name`` (after the task ``before``, if given: its failure is the result)."""
     system = _system(args, config)
     recorder = record_system(args.record, config, system)
     with system:
@@ -80,9 +89,16 @@ def _run(args: argparse.Namespace, config: Config, name: str, fn, **kwargs: Any)
             system.pump(system.clock() + WARM_UP_S)
         else:
             time.sleep(WARM_UP_S)
-        _say(f"running {name}" + (" (Ctrl-C stops it)" if not system.lockstep else ""))
         try:
-            status = system.run_task(name, fn, **kwargs)
+            status = None
+            if before is not None:
+                _say(f"running {before[0]}" + (" (Ctrl-C stops it)" if not system.lockstep else ""))
+                status = system.run_task(before[0], before[1], **before[2])
+                if status.phase == "succeeded":
+                    status = None
+            if status is None:
+                _say(f"running {name}" + (" (Ctrl-C stops it)" if not system.lockstep else ""))
+                status = system.run_task(name, fn, **kwargs)
         except KeyboardInterrupt:
             system.stop_task()
             _say("stopped: the arm holds where it is")
@@ -133,6 +149,46 @@ def cmd_analyze(args: argparse.Namespace, config: Config) -> int:
     from armvision.tasks.analyze import analyze
 
     return _run(args, config, "analyze", analyze, track_id=args.track)
+
+
+def cmd_place(args: argparse.Namespace, config: Config) -> int:
+    """Grab a bottle (``--track``, else the grab's choice), then place it: the place task
+    sets down what a grab holds, and a fresh system holds nothing."""
+    from armvision.tasks.grab import grab
+    from armvision.tasks.place import place, zone_rect
+
+    spot = args.x is not None or args.y is not None
+    if args.zone is not None and spot:
+        raise ArmvisionError("give --zone NAME or --x and --y (metres), not both")
+    if args.zone is None and (args.x is None or args.y is None):
+        raise ArmvisionError("say where: --zone NAME, or --x and --y (metres)")
+    if args.zone is not None:
+        zone_rect(config, args.zone)  # an unknown zone fails before the system is built
+    kwargs = {"zone": args.zone} if args.zone is not None else {"x": args.x, "y": args.y}
+    return _run(
+        args, config, "place", place, before=("grab", grab, {"track_id": args.track}), **kwargs
+    )
+
+
+def cmd_sort(args: argparse.Namespace, config: Config) -> int:
+    from armvision.tasks.sort import SortRule, sort
+
+    rule: dict[str, Any] | None = None
+    if args.threshold is not None:
+        rule = {"threshold": args.threshold}
+    if args.colours is not None:
+        rule = {}
+        for part in args.colours.split(","):
+            name, sep, zone = part.partition("=")
+            if not sep or not name.strip() or not zone.strip():
+                raise ArmvisionError(
+                    f"--colours {args.colours!r}: write NAME=ZONE pairs, e.g. "
+                    "'light blue=empty,*=full'"
+                )
+            rule[name.strip()] = zone.strip()
+    by = args.by or ("colour" if args.colours is not None else None)
+    SortRule.make(config, by, rule)  # a bad rule fails before the system is built
+    return _run(args, config, "sort", sort, by=by, rule=rule)
 
 
 def cmd_follow(args: argparse.Namespace, config: Config) -> int:
@@ -246,6 +302,31 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     add_record_option(analyze)
     analyze.set_defaults(func=cmd_analyze)
 
+    place = sub.add_parser(
+        "place", help="grab a bottle and set it down at a spot or on a free spot of a zone"
+    )
+    _where(place)
+    place.add_argument("--track", type=track_id, help="bottle track id (default: the grab's)")
+    place.add_argument("--zone", help="a zone of place.zones (default zones: empty, full)")
+    place.add_argument("--x", type=float, help="spot x, metres, base frame")
+    place.add_argument("--y", type=float, help="spot y, metres, base frame")
+    add_record_option(place)
+    place.set_defaults(func=cmd_place)
+
+    sort = sub.add_parser("sort", help="sort the bottles on the table into zones by fill or colour")
+    _where(sort)
+    sort.add_argument("--by", choices=("fill", "colour"), help="default sort.by (fill)")
+    sort.add_argument(
+        "--threshold", type=float, help="fill 0..1 below which a bottle goes to sort.below"
+    )
+    sort.add_argument(
+        "--colours",
+        metavar="NAME=ZONE,...",
+        help="by colour: colour name to zone, '*' for any other (default sort.colours)",
+    )
+    add_record_option(sort)
+    sort.set_defaults(func=cmd_sort)
+
     follow = sub.add_parser("follow", help="follow a tag or a bottle with the gripper")
     _where(follow)
     follow.add_argument("--target", choices=("tag", "bottle"), default="tag")
@@ -285,6 +366,20 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     grab_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
     arm_option(grab_eval)
     grab_eval.set_defaults(func=cmd_eval_grab)
+
+    sort_eval = eval_sub.add_parser("sort", help="sorting bottles by fill over random sort scenes")
+    sort_eval.add_argument("--trials", type=runs, default=20, help="scenes (default 20)")
+    sort_eval.add_argument("--seed", type=seed, default=0, help="first scene seed (default 0)")
+    sort_eval.add_argument(
+        "--calibration",
+        choices=("calibrate", "truth"),
+        default="calibrate",
+        help="calibrate once with the tag (default) or use the simulator's camera pose",
+    )
+    sort_eval.add_argument("--jobs", type=runs, default=1, help="trials at a time (processes)")
+    sort_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    arm_option(sort_eval)
+    sort_eval.set_defaults(func=cmd_eval_sort)
 
     follow_eval = eval_sub.add_parser("follow", help="servo vs blocking tag following")
     follow_eval.add_argument("--seed", type=seed, default=0)

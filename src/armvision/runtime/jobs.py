@@ -49,6 +49,9 @@ class Jobs:
         self._submitted: dict[int, Job] = {}
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
+        #: The newest final status of each task name (a later task may build on it: place
+        #: sets down the bottle the newest successful grab holds).
+        self.last: dict[str, TaskStatus] = {}
 
     @property
     def busy(self) -> bool:
@@ -196,6 +199,7 @@ class Jobs:
             )
 
     def finish(self, job: Job, status: TaskStatus) -> None:
+        self.last[job.name] = status
         self.system.store.set_task(status)
         job.status = status
         job.done.set()

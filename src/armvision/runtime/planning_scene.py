@@ -287,8 +287,25 @@ class PlanningScene:
         return PlanningScene(float(table_z), bodies, tuple(cells), arm)
 
     def obstacles(self, exclude_track: int | None = None) -> tuple[Body, ...]:
-        """Every body and occupied cell, but the track ``exclude_track`` (the one to grasp)."""
-        return tuple(b for b in self.bodies if b.track_id != exclude_track) + self.cells
+        """Every body and occupied cell, but the track ``exclude_track`` (the one to grasp) and
+        any track lying inside it: a body whose centre is nearer the excluded one's than half
+        their radii together is that object tracked twice (two solid objects on the table
+        cannot stand inside each other; the tracker may start a second track on a bottle it
+        lost sight of for a moment)."""
+        gone = next((b for b in self.bodies if b.track_id == exclude_track), None)
+
+        def same(b: Body) -> bool:
+            if gone is None:
+                return False
+            d = math.hypot(b.xy[0] - gone.xy[0], b.xy[1] - gone.xy[1])
+            return d < 0.5 * (b.radius + gone.radius)
+
+        kept = tuple(
+            b
+            for b in self.bodies
+            if exclude_track is None or (b.track_id != exclude_track and not same(b))
+        )
+        return kept + self.cells
 
     def to_dict(self) -> dict[str, Any]:
         return {

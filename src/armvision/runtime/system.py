@@ -497,6 +497,10 @@ class System:
         """Wait for task ``task_id`` to end (realtime); its final status."""
         return self.jobs.wait(task_id, timeout_s)
 
+    def last_status(self, name: str) -> TaskStatus | None:
+        """The final status of the newest task named ``name`` that ended, or None."""
+        return self.jobs.last.get(name)
+
     def stop_task(self) -> None:
         """Stop: the arm halts where it is now, the running task ends, queued ones are dropped."""
         self.jobs.stop()

@@ -7,24 +7,67 @@ image onto colours. Used by the UI's video streams and the demo's image.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from armvision.camera.frames import project
+from armvision.geometry import inv_T
 from armvision.perception.annotate import annotate
 from armvision.runtime.state import SystemState
 
 _TRACK_COLOUR = (255, 255, 0)  # RGB
+_ZONE_COLOUR = (255, 140, 0)  # RGB
+
+
+def draw_zones(
+    image: NDArray[np.uint8],
+    state: SystemState,
+    zones: Mapping[str, tuple[float, float, float, float]],
+    table_z: float = 0.0,
+) -> None:
+    """Outline each zone's rectangle on the table (``place.zones``, base frame at
+    ``table_z``) on ``image`` as the camera the system works with sees it, with its name."""
+    frame = state.frame
+    if frame is None:
+        return
+    T_cam_base = inv_T(state.T_base_cam)
+    for name, (x0, y0, x1, y1) in zones.items():
+        corners = np.array(
+            [[x0, y0, table_z], [x1, y0, table_z], [x1, y1, table_z], [x0, y1, table_z]]
+        )
+        px = project(frame.intrinsics, corners @ T_cam_base[:3, :3].T + T_cam_base[:3, 3])
+        if not np.all(np.isfinite(px)):
+            continue
+        pts = np.round(px).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(image, [pts], True, _ZONE_COLOUR, 2, cv2.LINE_AA)
+        x, y = (int(v) for v in np.round(px.min(axis=0)))
+        cv2.putText(
+            image,
+            name,
+            (max(x, 2), max(y - 4, 12)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            _ZONE_COLOUR,
+            1,
+            cv2.LINE_AA,
+        )
 
 
 def annotated(
-    state: SystemState, tag_axis_m: float, newest: bool = True
+    state: SystemState,
+    tag_axis_m: float,
+    newest: bool = True,
+    zones: Mapping[str, tuple[float, float, float, float]] | None = None,
 ) -> NDArray[np.uint8] | None:
     """The colour image with everything the system found drawn on it (RGB), or None before
     the first frame.
 
     ``newest``: draw on the newest frame (live video; boxes may trail a moving object by the
     object stage's period); else on the frame the detections came from (a still image).
+    ``zones``: also outline these table zones (:func:`draw_zones`).
     """
     frame = state.frame if newest else (state.detections_frame or state.frame)
     if frame is None:
@@ -37,6 +80,8 @@ def annotated(
     image = annotate(
         frame.color, frame.intrinsics, state.tags, state.detections, levels, tag_axis_m
     )
+    if zones:
+        draw_zones(image, state, zones)
     for t in state.tracks:
         if t.box is None:
             continue

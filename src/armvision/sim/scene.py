@@ -773,11 +773,11 @@ def footprint_gap(p: Footprint, q: Footprint) -> float:
     )
 
 
-def _in_band(x: float, y: float) -> bool:
+def _in_band(x: float, y: float, bearing_range: tuple[float, float] = OBJECT_BEARING_RANGE) -> bool:
     rho, bearing = math.hypot(x, y), math.atan2(y, x)
     return (
         OBJECT_RADIAL_RANGE[0] <= rho <= OBJECT_RADIAL_RANGE[1]
-        and OBJECT_BEARING_RANGE[0] <= bearing <= OBJECT_BEARING_RANGE[1]
+        and bearing_range[0] <= bearing <= bearing_range[1]
     )
 
 
@@ -787,18 +787,20 @@ def place_cluttered(
     cam_xy: tuple[float, float],
     extra_radii: tuple[float, ...] = (),
     max_tries: int = 3000,
+    bearing_range: tuple[float, float] = OBJECT_BEARING_RANGE,
 ) -> tuple[list[ObjectSpec], list[tuple[float, float]]]:
     """Place ``drafts`` close together in the default's band, at least ``CLUTTERED_MIN_GAP``
     apart; after the first, about ``CLUTTERED_BEHIND_SHARE`` of them deliberately behind an
     already placed one as the camera (at ``cam_xy``) sees it, shifted sideways so that they
     are partly hidden, and ``CLUTTERED_BESIDE_SHARE`` beside one, 1-5 cm from it; the rest
     anywhere in the band (the fallback of the others too). Then discs of ``extra_radii``
-    (loose tags) anywhere free."""
+    (loose tags) anywhere free. ``bearing_range`` narrows the band (the sort profile keeps
+    the sides free for its zones)."""
     placed: list[Footprint] = []
     objects: list[ObjectSpec] = []
 
     def free(fp: Footprint) -> bool:
-        return _in_band(fp.x, fp.y) and all(
+        return _in_band(fp.x, fp.y, bearing_range) and all(
             footprint_gap(fp, other) >= CLUTTERED_MIN_GAP for other in placed
         )
 
@@ -827,7 +829,7 @@ def place_cluttered(
                 x, y = front.x + along * ux - side * uy, front.y + along * uy + side * ux
             else:
                 rho = math.sqrt(rng.uniform(r_lo**2, r_hi**2))
-                bearing = rng.uniform(*OBJECT_BEARING_RANGE)
+                bearing = rng.uniform(*bearing_range)
                 x, y = rho * math.cos(bearing), rho * math.sin(bearing)
             candidate = dataclasses.replace(draft, x=float(x), y=float(y), yaw=yaw)
             fp = footprint_of(candidate)
@@ -841,7 +843,7 @@ def place_cluttered(
     for radius in extra_radii:
         for _ in range(max_tries):
             rho = math.sqrt(rng.uniform(r_lo**2, r_hi**2))
-            bearing = rng.uniform(*OBJECT_BEARING_RANGE)
+            bearing = rng.uniform(*bearing_range)
             fp = Footprint(rho * math.cos(bearing), rho * math.sin(bearing), radius)
             if free(fp):
                 placed.append(fp)
@@ -888,6 +890,70 @@ def generate_cluttered_scene(config: Config, seed: int) -> SceneSpec:
     return SceneSpec(T_base_cam, tuple(objects), loose, lighting)
 
 
+#: Sort scenes: how many bottles and distractors, the band's bearings (the sides are the
+#: zones'), the bottle kinds (those whose liquid shows) and how far every true fill stays
+#: from ``sort.fill_threshold`` (a fill on the threshold belongs to neither zone for sure).
+SORT_BOTTLES = (2, 4)
+SORT_DISTRACTORS = (0, 2)
+SORT_BEARING_RANGE = (-math.radians(26.0), math.radians(26.0))
+SORT_BOTTLE_KINDS = ("bottle", "water_bottle", "soda_bottle", "wine_bottle")
+SORT_FILL_MARGIN = 0.08
+SORT_FILL_RANGE = (0.08, 0.9)
+#: Salt of the sort profile's random stream.
+SORT_SALT = 0x5027
+
+
+def sort_fills(rng: np.random.Generator, n: int, threshold: float) -> list[float]:
+    """``n`` true fills in :data:`SORT_FILL_RANGE`, each at least :data:`SORT_FILL_MARGIN`
+    from ``threshold``, the first below it and the second above (both zones are used), the
+    rest on either side by chance."""
+    lo, hi = SORT_FILL_RANGE
+    below = (lo, max(lo, threshold - SORT_FILL_MARGIN))
+    above = (min(hi, threshold + SORT_FILL_MARGIN), hi)
+    sides = [below, above] + [below if rng.uniform() < 0.5 else above for _ in range(n - 2)]
+    return [float(rng.uniform(*side)) for side in sides[:n]]
+
+
+def generate_sort_scene(config: Config, seed: int) -> SceneSpec:
+    """The sort profile's scene for ``seed``: 2-4 bottles whose liquid shows (the plain one
+    and the water, soda and wine families) with fills either side of
+    ``sort.fill_threshold`` (:func:`sort_fills`), and 0-2 distractors, 1-5 cm apart as in the
+    cluttered profile, in the middle of the band (:data:`SORT_BEARING_RANGE`) so the default
+    ``place.zones`` either side stay free; random lighting."""
+    sim = config.sim
+    rng = np.random.default_rng([seed, SORT_SALT])
+    T_base_cam = random_camera_pose(sim, rng)
+    n_bottles = int(rng.integers(SORT_BOTTLES[0], SORT_BOTTLES[1] + 1))
+    n_other = int(rng.integers(SORT_DISTRACTORS[0], SORT_DISTRACTORS[1] + 1))
+    fills = sort_fills(rng, n_bottles, config.sort.fill_threshold)
+    drafts: list[ObjectSpec] = []
+    for i, fill in enumerate(fills):
+        kind = SORT_BOTTLE_KINDS[int(rng.integers(len(SORT_BOTTLE_KINDS)))]
+        if kind == "bottle":
+            draft = random_object(rng, f"object{i}")
+            while draft.kind != "bottle":
+                draft = random_object(rng, f"object{i}")
+        else:
+            draft = random_cluttered_object(rng, f"object{i}", kind)
+        drafts.append(dataclasses.replace(draft, fill=fill))
+    for j in range(n_other):
+        kind = str(DISTRACTOR_KINDS[int(rng.integers(len(DISTRACTOR_KINDS)))])
+        drafts.append(random_cluttered_object(rng, f"object{n_bottles + j}", kind))
+    drafts = [drafts[i] for i in rng.permutation(len(drafts))]
+    tag_half = assets.tag_outer_size(config.tag.size) / math.sqrt(2.0)
+    cam_xy = (float(T_base_cam[0, 3]), float(T_base_cam[1, 3]))
+    objects, tag_xy = place_cluttered(
+        rng, drafts, cam_xy, (tag_half,) * sim.loose_tags, bearing_range=SORT_BEARING_RANGE
+    )
+    free_ids = [i for i in range(100) if i != config.tag.id]
+    loose = tuple(
+        LooseTag(free_ids[k], x, y, float(rng.uniform(-math.pi, math.pi)), config.tag.size)
+        for k, (x, y) in enumerate(tag_xy)
+    )
+    lighting = random_lighting(np.random.default_rng([seed, 0x11647]))
+    return SceneSpec(T_base_cam, tuple(objects), loose, lighting)
+
+
 def bench_scene(config: Config) -> SceneSpec:
     """A fixed bench, the same every time: a juice bottle (60 % full) and a water cup in easy
     reach, and tag ``follow.tag_id`` lying between them, under the configured camera. For
@@ -907,6 +973,8 @@ def generate_scene(config: Config, seed: int) -> SceneSpec:
     sim = config.sim
     if sim.profile == "cluttered":
         return generate_cluttered_scene(config, seed)
+    if sim.profile == "sort":
+        return generate_sort_scene(config, seed)
     rng = np.random.default_rng(seed)
     T_base_cam = random_camera_pose(sim, rng)
     n = int(rng.integers(sim.min_objects, sim.max_objects + 1))

@@ -342,6 +342,8 @@ ACTIONS: dict[str, Action] = {
     "follow_bottle": Action("Follow bottle", frozenset({"track_id", "duration_s"}), "bottle"),
     "grab": Action("Grab bottle", frozenset({"track_id"}), "bottle"),
     "analyze": Action("Analyze bottle", frozenset({"track_id"}), "bottle"),
+    "place": Action("Place", frozenset({"zone"})),
+    "sort": Action("Sort bottles", frozenset({"by"}), "bottle"),
 }
 
 
@@ -353,6 +355,8 @@ class ActionBody(BaseModel):
     track_id: int | None = Field(None, ge=0)
     tag_id: int | None = Field(None, ge=0)
     duration_s: float | None = Field(None, gt=0.0, le=3600.0)
+    zone: str | None = Field(None, min_length=1, max_length=40)
+    by: Literal["fill", "colour"] | None = None
 
 
 #: What each parameter must be, for the messages.
@@ -360,6 +364,8 @@ PARAMETER_RULES = {
     "track_id": "a bottle's track id, a JSON integer (the page's list of tracks has them)",
     "tag_id": "a tag id, a JSON integer of 0 or more",
     "duration_s": "a number of seconds above 0 and at most 3600 (a JSON number, not a string)",
+    "zone": "a zone's name of place.zones, a JSON string (the page's list has them)",
+    "by": 'what to sort by: "fill" or "colour"',
 }
 
 
@@ -624,6 +630,7 @@ def state_payload(
             "busy": state.task.active,
             "actions": action_states(state),
             "recording": None if recording is None else recording.status(),
+            "zones": {name: list(rect) for name, rect in system.config.place.zones.items()},
         }
     )
 
@@ -732,7 +739,7 @@ class OperatorUI:
         image = (
             depth_image(frame.depth, self.settings.depth_min_m, self.settings.depth_max_m)
             if view == "depth"
-            else annotated(state, self.config.tag.size)
+            else annotated(state, self.config.tag.size, zones=self.config.place.zones)
         )
         if image is None:
             return None
@@ -837,6 +844,13 @@ class OperatorUI:
                     f"no bottle track #{_short(params.track_id)} (bottles tracked now: {have}): "
                     "pick one of those, or none for the nearest",
                 )
+        zones = self.config.place.zones
+        if params.zone is not None and params.zone not in zones:
+            raise RequestError(
+                400,
+                f"no zone {_short(params.zone)} in place.zones (zones: "
+                f"{', '.join(sorted(zones)) or 'none'})",
+            )
         own = self.config.tag.id
         if params.tag_id is not None and params.tag_id == own:
             seen = sorted({t.id for t in state.tags} - {own})
@@ -890,6 +904,14 @@ class OperatorUI:
             from armvision.tasks.analyze import analyze
 
             return analyze, {"track_id": p.track_id}
+        if name == "place":
+            from armvision.tasks.place import place
+
+            return place, {"zone": p.zone or next(iter(self.config.place.zones))}
+        if name == "sort":
+            from armvision.tasks.sort import sort
+
+            return sort, {"by": p.by}
         from armvision.tasks.follow import follow
 
         if name == "follow_tag":

@@ -123,7 +123,7 @@ function clearError() { showError(''); }
 // ---------------------------------------------------------------- actions
 
 const ACTIONS = ['home', 'sleep', 'gripper_open', 'gripper_close', 'calibrate',
-  'follow_tag', 'follow_bottle', 'grab', 'analyze'];
+  'follow_tag', 'follow_bottle', 'grab', 'analyze', 'place', 'sort'];
 const buttonOf = (name) => $('btn-' + name.replace(/_/g, '-'));
 
 let lastState = null;       // newest state JSON
@@ -147,6 +147,8 @@ function actionBody(name) {
     case 'analyze': return { track_id: selectedTrackId() };
     case 'follow_bottle': return { track_id: selectedTrackId(), duration_s: followDuration() };
     case 'follow_tag': return { tag_id: null, duration_s: followDuration() };
+    case 'place': return { zone: $('zone-select').value || null };
+    case 'sort': return { by: $('sort-by').value || null };
     default: return {};
   }
 }
@@ -174,8 +176,24 @@ async function stopAll() {
   }
 }
 
+/** The zone list of the Place control, from the state's zones (kept when unchanged). */
+function renderZones() {
+  const zones = Object.keys((lastState && lastState.zones) || {});
+  const select = $('zone-select');
+  const shown = Array.from(select.options).map((o) => o.value);
+  if (shown.join('\n') === zones.join('\n')) return;
+  const keep = select.value;
+  select.replaceChildren(...zones.map((z) => {
+    const o = document.createElement('option');
+    o.value = z; o.textContent = z;
+    return o;
+  }));
+  if (zones.includes(keep)) select.value = keep;
+}
+
 /** Enable each action button as state.actions says (all off while disconnected). */
 function renderButtons() {
+  renderZones();
   const actions = (lastState && lastState.actions) || {};
   for (const name of ACTIONS) {
     const btn = buttonOf(name);

@@ -1,0 +1,395 @@
+"""Sort the bottles on the table into zones by what is in them: ``sort(by="fill" | "colour")``.
+
+The rule (:class:`SortRule`, from ``sort`` in the configuration unless ``rule`` says
+otherwise): by fill, a bottle measured below the threshold goes to the zone ``below``
+(default ``empty``), any other to ``above`` (``full``); by colour, to the zone the liquid's
+colour name maps to (``"*"`` for any other colour; a colour without a zone is skipped). Every
+zone named must exist in ``place.zones``; a bad rule fails before anything moves.
+
+One bottle after the other, until none is left to look at:
+
+1. **The next bottle**: of the confirmed bottle tracks not standing in a zone and not yet
+   handled (a handled bottle is remembered by where it stood), the one nearest the camera
+   (taking the front ones first uncovers those behind them).
+2. **Measure** it with the analyze task (:func:`~armvision.tasks.analyze.analyze`: in place,
+   or picked and presented when the view is poor, then put back). No trustworthy fill (an
+   opaque wall, a hidden body: the meter says ``unknown``) or no colour name: skipped, with
+   the reason.
+3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
+   a bottle of the track's size (else skipped: "zone full").
+4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware; a refusal moves nothing
+   and the bottle is skipped as unreachable, with the planner's reason).
+5. **Place** it on a free spot of the zone (:class:`~armvision.tasks.place.Placer`: the
+   analyze task's carrying moves, then the check of where it stands). Should the zone have
+   no spot for the bottle as the fingers measured it, it is put back where it stood.
+
+The report (:class:`SortResult`) lists per bottle what was done: ``placed`` (with the place
+check), ``skipped`` (why) or ``failed`` (why, and where the bottle is). ``ok`` when no bottle
+failed. Stop ends the sort at once: every wait is the task context's, so TaskStopped
+propagates and the arm halts where it is.
+
+Units: metres; positions in the base frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from armvision.config import Config
+from armvision.fusion.tracker import TrackState
+from armvision.runtime.context import TaskContext, TaskError
+from armvision.tasks.analyze import AnalyzeResult, analyze
+from armvision.tasks.carry import Held
+from armvision.tasks.colour import COLOUR_PALETTE
+from armvision.tasks.grab import grab
+from armvision.tasks.place import (
+    PlaceError,
+    Placer,
+    held_obstacles,
+    holding,
+    zone_rect,
+    zone_spot,
+)
+
+Array = NDArray[np.float64]
+
+#: A bottle track this near where a handled bottle stood is that bottle, m.
+SAME_BOTTLE_M = 0.06
+#: The sort looks at no more bottles than this (a tracker that keeps making new tracks
+#: cannot keep it going).
+MAX_BOTTLES = 12
+#: Before the first bottle, the sort waits this long for tracks to settle, s.
+SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class SortRule:
+    """Which zone a measurement chooses (the module docstring)."""
+
+    by: Literal["fill", "colour"]
+    threshold: float = 0.3
+    below: str = "empty"
+    above: str = "full"
+    colours: Mapping[str, str] = field(default_factory=dict)
+
+    @staticmethod
+    def make(config: Config, by: str | None, rule: Mapping[str, Any] | None) -> SortRule:
+        """The rule from ``sort`` in ``config``, ``by`` and ``rule`` overriding it (keys
+        ``threshold``, ``below``, ``above`` for fill; colour name to zone for colour);
+        TaskError with what is wrong."""
+        cfg = config.sort
+        by = cfg.by if by is None else by
+        if by not in ("fill", "colour"):
+            raise TaskError(f"sort by 'fill' or 'colour', not {by!r}")
+        rule = dict(rule or {})
+        if by == "fill":
+            unknown = sorted(set(rule) - {"threshold", "below", "above"})
+            if unknown:
+                raise TaskError(
+                    f"a fill rule has the keys threshold, below, above, not {', '.join(unknown)}"
+                )
+            threshold = rule.get("threshold", cfg.fill_threshold)
+            if isinstance(threshold, bool) or not isinstance(threshold, (int, float)):
+                raise TaskError(f"the fill threshold must be a number 0..1, not {threshold!r}")
+            if not 0.0 < float(threshold) < 1.0:
+                raise TaskError(f"the fill threshold must be between 0 and 1, not {threshold}")
+            made = SortRule(
+                "fill",
+                float(threshold),
+                str(rule.get("below", cfg.below)),
+                str(rule.get("above", cfg.above)),
+            )
+            zones = [made.below, made.above]
+        else:
+            colours = {str(k): str(v) for k, v in (rule or cfg.colours).items()}
+            if not colours:
+                raise TaskError(
+                    "sorting by colour needs a rule: colour name to zone (sort.colours, e.g. "
+                    '{"light blue" = "empty", "*" = "full"})'
+                )
+            bad = sorted(c for c in colours if c != "*" and c not in COLOUR_PALETTE)
+            if bad:
+                raise TaskError(
+                    f"unknown colour name {bad[0]!r}: names are {', '.join(COLOUR_PALETTE)} or '*'"
+                )
+            made = SortRule("colour", colours=colours)
+            zones = list(colours.values())
+        for zone in zones:
+            zone_rect(config, zone)  # PlaceError (a TaskError) names the zones there are
+        return made
+
+    def zone_for(self, measured: AnalyzeResult) -> tuple[str | None, str]:
+        """(zone, why) for a measurement; zone None (skipped) with the reason."""
+        if self.by == "fill":
+            if measured.fill is None:
+                return None, "unknown fill"
+            pct = 100 * measured.fill
+            if measured.fill < self.threshold:
+                return self.below, f"fill {pct:.0f} % < {100 * self.threshold:.0f} %"
+            return self.above, f"fill {pct:.0f} % >= {100 * self.threshold:.0f} %"
+        name = measured.colour_name
+        if name is None:
+            return None, "no liquid colour seen"
+        zone = self.colours.get(name, self.colours.get("*"))
+        if zone is None:
+            return None, f"no zone for the colour {name!r}"
+        return zone, f"colour {name}"
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.by == "fill":
+            return {
+                "by": "fill",
+                "threshold": self.threshold,
+                "below": self.below,
+                "above": self.above,
+            }
+        return {"by": "colour", "colours": dict(self.colours)}
+
+
+@dataclass
+class BottleReport:
+    """What the sort did with one bottle: ``action`` placed / skipped / failed / in zone."""
+
+    track_id: int
+    start: tuple[float, float]
+    action: str = "skipped"
+    reason: str = ""
+    fill: float | None = None
+    colour_name: str | None = None
+    zone: str | None = None
+    place: dict[str, Any] | None = None
+    picked: bool = False  # the analysis picked it to present it (and put it back)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "track_id": self.track_id,
+            "picked": self.picked,
+            "start": [round(v, 4) for v in self.start],
+            "action": self.action,
+            "reason": self.reason,
+            "fill": None if self.fill is None else round(self.fill, 4),
+            "colour_name": self.colour_name,
+            "zone": self.zone,
+            "place": self.place,
+        }
+
+
+@dataclass(frozen=True)
+class SortResult:
+    """The sort's report: per bottle (:class:`BottleReport`), ``ok`` when none failed."""
+
+    ok: bool
+    reason: str
+    rule: SortRule
+    bottles: tuple[BottleReport, ...]
+    duration_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        counts = {
+            a: sum(b.action == a for b in self.bottles) for a in ("placed", "skipped", "failed")
+        }
+        return {
+            "ok": self.ok,
+            "reason": self.reason,
+            "rule": self.rule.to_dict(),
+            **counts,
+            "bottles": [b.to_dict() for b in self.bottles],
+            "duration_s": round(self.duration_s, 3),
+        }
+
+
+def in_zone(config: Config, xy: Array) -> str | None:
+    """The zone whose rectangle holds ``xy``, or None."""
+    for name, (x0, y0, x1, y1) in config.place.zones.items():
+        if x0 <= xy[0] <= x1 and y0 <= xy[1] <= y1:
+            return name
+    return None
+
+
+class _Sort:
+    def __init__(self, ctx: TaskContext, rule: SortRule) -> None:
+        self.ctx, self.rule = ctx, rule
+        self.start = ctx.now()
+        self.reports: list[BottleReport] = []
+
+    def handled(self, track: TrackState) -> bool:
+        return any(
+            math.dist(r.start, track.p_base[:2]) < SAME_BOTTLE_M
+            or (
+                r.place is not None
+                and r.place.get("asked") is not None
+                and math.dist(r.place["asked"], track.p_base[:2]) < SAME_BOTTLE_M
+            )
+            for r in self.reports
+        )
+
+    def next_bottle(self) -> TrackState | None:
+        state = self.ctx.state()
+        cam = state.T_base_cam[:3, 3]
+        left = [
+            t
+            for t in state.bottles()
+            if t.height is not None
+            and in_zone(self.ctx.config, t.p_base[:2]) is None
+            and not self.handled(t)
+        ]
+        return min(left, key=lambda t: float(np.linalg.norm(t.p_base - cam)), default=None)
+
+    def run(self) -> SortResult:
+        ctx = self.ctx
+        ctx.progress(0.01, "waiting for the bottles' tracks")
+        ctx.wait_until(lambda: bool(ctx.state().bottles()), ctx.config.grab.track_wait_s)
+        ctx.sleep(SETTLE_S)
+        while len(self.reports) < MAX_BOTTLES:
+            track = self.next_bottle()
+            if track is None:
+                break
+            report = BottleReport(track.id, (float(track.p_base[0]), float(track.p_base[1])))
+            self.reports.append(report)
+            self.handle(track, report)
+            if report.action == "failed" and holding(ctx):
+                report.reason += "; the sort ends here, the bottle still in the gripper"
+                break
+        return self.result()
+
+    def progress(self, step: float, message: str) -> None:
+        n = len(self.reports)
+        self.ctx.progress(min(0.95, 0.05 + 0.15 * (n - 1) + 0.15 * step), message)
+
+    def handle(self, track: TrackState, report: BottleReport) -> None:
+        ctx, rule = self.ctx, self.rule
+        self.progress(0.0, f"bottle {len(self.reports)} (track {track.id}): measuring it")
+        measured = analyze(ctx, track_id=track.id)
+        report.fill, report.colour_name = measured.fill, measured.colour_name
+        report.picked = measured.picked
+        if not measured.ok:
+            report.reason = f"not measured: {measured.reason}"
+            if measured.picked and holding(ctx):
+                report.action = "failed"  # the analysis could not put it back
+            return
+        zone, why = rule.zone_for(measured)
+        if zone is None:
+            report.reason = why
+            return
+        report.zone = zone
+        # Where it stands now (a presented bottle was put back, as a new track).
+        where = np.array(measured.position[:2] if measured.position else track.p_base[:2])
+        now = self.track_near(where)
+        if now is None:
+            report.reason = f"{why}: its track was lost after the measurement"
+            return
+        if in_zone(ctx.config, now.p_base[:2]) == zone:
+            report.action, report.reason = "in zone", f"{why}: already in {zone!r}"
+            return
+        if self.spot_for(now, zone) is None:
+            report.reason = f"{why}, but zone {zone!r} has no free spot for it"
+            return
+        self.progress(0.5, f"bottle {len(self.reports)}: {why}, taking it to {zone!r}")
+        before = ctx.state().planning_scene  # its neighbours, before the arm hides them
+        grabbed = grab(ctx, track_id=now.id)
+        if not grabbed.ok:
+            report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
+            if holding(ctx):
+                report.action = "failed"  # something stays in the fingers
+            return
+        state = ctx.state()
+        tops = [b.top for b in state.planning_scene.obstacles(now.id)]
+        finger = float(ctx.arm.gripper.get_finger_position())
+        held = Held.from_grab(grabbed, finger, now, tops, ctx.config.grab)
+        placer = Placer(ctx, held, now.id, before)
+        try:
+            plan = placer.choose(None, None, zone)
+        except PlaceError as exc:
+            self.put_back(placer, report, f"{why}, but {exc}")
+            return
+        self.progress(0.75, f"bottle {len(self.reports)}: setting it down in {zone!r}")
+        placed = placer.set_down(plan, zone)
+        report.place = placed.to_dict()
+        report.action = "placed" if placed.released else "failed"
+        report.reason = f"{why}: {placed.reason}"
+
+    def put_back(self, placer: Placer, report: BottleReport, why: str) -> None:
+        """Stand the held bottle back where it came from."""
+        home = placer.held.home_xy
+        try:
+            plan = placer.choose(float(home[0]), float(home[1]), None, footprint=False)
+        except PlaceError as exc:
+            report.action, report.reason = "failed", f"{why}; it cannot be put back: {exc}"
+            return
+        back = placer.set_down(plan, None)
+        if back.released:
+            report.reason = f"{why}; put back in its place"
+        else:
+            report.action, report.reason = "failed", f"{why}; putting it back: {back.reason}"
+
+    def track_near(self, xy: Array) -> TrackState | None:
+        """The bottle track nearest ``xy`` within :data:`SAME_BOTTLE_M` (waited for)."""
+
+        def find() -> TrackState | None:
+            near = [
+                t
+                for t in self.ctx.state().bottles()
+                if t.height is not None and np.linalg.norm(t.p_base[:2] - xy) < SAME_BOTTLE_M
+            ]
+            return min(near, key=lambda t: float(np.linalg.norm(t.p_base[:2] - xy)), default=None)
+
+        self.ctx.wait_until(lambda: find() is not None, self.ctx.config.grab.track_wait_s)
+        return find()
+
+    def spot_for(self, track: TrackState, zone: str) -> Array | None:
+        """A free spot in ``zone`` for a bottle of ``track``'s size, before it is grasped."""
+        ctx = self.ctx
+        cfg, gcfg = ctx.config.place, ctx.config.grab
+        height = float(track.height or 0.2)
+        radius = float(track.radius or 0.03)
+        table_z = float(track.p_base[2]) - 0.5 * height
+        state = ctx.state()
+        tops = [b.top for b in state.planning_scene.obstacles(track.id)]
+        offset = gcfg.grasp_height_fraction * height
+        carry_z = max(max([table_z, *tops]) + 0.04 + offset, table_z + offset + gcfg.lift)
+        held = Held(radius, height, table_z, offset, carry_z, np.array(track.p_base[:2]))
+        obstacles = held_obstacles(state.planning_scene, track.id, None, radius)
+        return zone_spot(
+            zone_rect(ctx.config, zone),
+            held,
+            obstacles,
+            cfg.clearance,
+            gcfg.min_base_distance,
+            ctx.arm.model,
+        )
+
+    def result(self) -> SortResult:
+        placed = sum(r.action == "placed" for r in self.reports)
+        failed = [r for r in self.reports if r.action == "failed"]
+        skipped = sum(r.action == "skipped" for r in self.reports)
+        if not self.reports:
+            reason = "no bottle to sort (none tracked outside the zones)"
+        else:
+            reason = f"{placed} placed, {skipped} skipped, {len(failed)} failed"
+            if failed:
+                reason += f" (first: track {failed[0].track_id}: {failed[0].reason})"
+        return SortResult(
+            ok=not failed,
+            reason=reason,
+            rule=self.rule,
+            bottles=tuple(self.reports),
+            duration_s=self.ctx.now() - self.start,
+        )
+
+
+def sort(
+    ctx: TaskContext, by: str | None = None, rule: Mapping[str, Any] | None = None
+) -> SortResult:
+    """Measure every bottle on the table and place it in the zone its measurement chooses
+    (the module docstring). ``by``: ``"fill"`` or ``"colour"`` (default ``sort.by``);
+    ``rule``: for fill ``{"threshold": 0.3, "below": "empty", "above": "full"}``, for colour
+    ``{"light blue": "empty", "*": "full"}`` (default from ``sort``)."""
+    made = SortRule.make(ctx.config, by, rule)
+    ctx.require_aim()
+    return _Sort(ctx, made).run()

@@ -1,0 +1,265 @@
+"""tasks.place and tasks.sort: zones, spots, rules, and on the lockstep simulation judged by
+the simulator's truth (where the bottle stands, upright, what else moved); Stop during a sort.
+
+The tag and liquid stages are off and the object stage runs at 5 Hz: the tests spend their
+time rendering, and neither stage matters here (the sort measures with the analyze task's
+own meter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from armvision.bench.system import sim_system
+from armvision.config import Config, load_config
+from armvision.errors import ConfigError
+from armvision.perception.liquid import LiquidLevelMeter
+from armvision.robot.kinematics import VX300S
+from armvision.runtime.context import TaskError
+from armvision.runtime.planning_scene import Body
+from armvision.sim.scene import (
+    SORT_FILL_MARGIN,
+    ObjectSpec,
+    SceneSpec,
+    generate_scene,
+    random_camera_pose,
+)
+from armvision.tasks.analyze import AnalyzeResult
+from armvision.tasks.carry import Held
+from armvision.tasks.grab import grab
+from armvision.tasks.place import place, spot_refusal, zone_candidates, zone_spot
+from armvision.tasks.sort import SortRule, in_zone, sort
+
+BOTTLE = ObjectSpec("bottle", "bottle", 0.030, 0.20, 0.7, "juice", x=0.40, y=0.05, yaw=0.4)
+CUP = ObjectSpec("cup", "cup", 0.034, 0.10, 0.3, "water", x=0.36, y=-0.10)
+
+
+def _config(**sections: object) -> Config:
+    config = Config()
+    runtime = dataclasses.replace(
+        config.runtime, tag_detection=False, liquid_detection=False, object_hz=5.0
+    )
+    grab_cfg = dataclasses.replace(config.grab, track_wait_s=3.0)
+    return dataclasses.replace(config, runtime=runtime, grab=grab_cfg, **sections)
+
+
+def _scene(*objects: ObjectSpec) -> SceneSpec:
+    return SceneSpec(random_camera_pose(Config().sim, None), objects)
+
+
+HELD = Held(0.03, 0.2, 0.0, 0.09, 0.33, np.array([0.4, 0.0]))
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def test_zones_are_validated_with_one_line_errors(tmp_path) -> None:
+    bad = tmp_path / "small.toml"
+    bad.write_text("[place.zones]\nempty = [0.3, 0.1, 0.32, 0.4]\n")
+    with pytest.raises(ConfigError, match=r"zone .empty. must be .* at least 0.08 m") as info:
+        load_config(bad)
+    assert "\n" not in str(info.value)
+    missing = tmp_path / "missing.toml"
+    missing.write_text('[sort]\nbelow = "bin"\n')
+    with pytest.raises(ConfigError, match=r"sort.below names zone .bin.*zones: empty, full"):
+        load_config(missing)
+
+
+def test_default_zones_lie_on_the_table_apart_from_the_sort_scenes() -> None:
+    config = dataclasses.replace(Config(), sim=dataclasses.replace(Config().sim, profile="sort"))
+    assert set(config.place.zones) == {"empty", "full"}
+    for seed in range(12):
+        scene = generate_scene(config, seed)
+        bottles = [o for o in scene.objects if o.label == "bottle"]
+        assert 2 <= len(bottles) <= 4
+        fills = [o.fill for o in bottles]
+        assert min(fills) < config.sort.fill_threshold < max(fills)  # both zones used
+        assert all(abs(f - config.sort.fill_threshold) >= SORT_FILL_MARGIN - 1e-9 for f in fills)
+        assert all(o.fill_visible for o in bottles)
+        for o in scene.objects:
+            assert in_zone(config, np.array([o.x, o.y])) is None
+
+
+# --------------------------------------------------------------------------- spots
+
+
+def test_a_spot_is_refused_off_the_table_taken_or_too_near_the_base() -> None:
+    cup = Body((0.30, 0.30), 0.035, 0.0, 0.1, "cup", 4)
+    args = ([cup], 0.03, 0.05, VX300S)
+    assert "off the table" in spot_refusal(np.array([0.9, 0.0]), HELD, *args)
+    assert "too near the base" in spot_refusal(np.array([0.05, 0.0]), HELD, *args)
+    assert "taken: the cup (track 4)" in spot_refusal(np.array([0.31, 0.28]), HELD, *args)
+    assert spot_refusal(np.array([0.30, -0.30]), HELD, *args) is None
+
+
+def test_a_zone_spot_is_inside_the_zone_and_clear_of_what_stands_there() -> None:
+    rect = Config().place.zones["full"]
+    first = zone_spot(rect, HELD, [], 0.03, 0.05, VX300S)
+    assert first is not None
+    taken = Body((float(first[0]), float(first[1])), 0.035, 0.0, 0.2, "bottle", 9)
+    second = zone_spot(rect, HELD, [taken], 0.03, 0.05, VX300S)
+    assert second is not None
+    for xy in (first, second):
+        assert rect[0] + HELD.radius - 1e-9 <= xy[0] <= rect[2] - HELD.radius + 1e-9
+        assert rect[1] + HELD.radius - 1e-9 <= xy[1] <= rect[3] - HELD.radius + 1e-9
+    assert np.linalg.norm(second - first) >= 2 * 0.03 + 0.03
+    # A zone too small for the bottle has no candidate at all.
+    assert len(zone_candidates((0.2, 0.2, 0.25, 0.25), 0.03)) == 0
+
+
+# --------------------------------------------------------------------------- sort rules
+
+
+def _measured(fill: float | None, colour: str | None = None) -> AnalyzeResult:
+    return AnalyzeResult(ok=True, reason="", fill=fill, colour_name=colour)
+
+
+def test_the_fill_rule_chooses_below_or_above_the_threshold() -> None:
+    rule = SortRule.make(Config(), "fill", None)
+    assert rule.zone_for(_measured(0.12))[0] == "empty"
+    assert rule.zone_for(_measured(0.30))[0] == "full"
+    assert rule.zone_for(_measured(None)) == (None, "unknown fill")
+    strict = SortRule.make(Config(), "fill", {"threshold": 0.5})
+    assert strict.zone_for(_measured(0.4))[0] == "empty"
+
+
+def test_the_colour_rule_maps_names_to_zones_with_a_fallback() -> None:
+    rule = SortRule.make(Config(), "colour", {"orange": "full", "*": "empty"})
+    assert rule.zone_for(_measured(0.5, "orange"))[0] == "full"
+    assert rule.zone_for(_measured(0.5, "dark red"))[0] == "empty"
+    assert rule.zone_for(_measured(0.5, None))[0] is None
+    only = SortRule.make(Config(), "colour", {"orange": "full"})
+    assert only.zone_for(_measured(0.5, "blue")) == (None, "no zone for the colour 'blue'")
+
+
+@pytest.mark.parametrize(
+    ("by", "rule", "message"),
+    [
+        ("size", None, "sort by 'fill' or 'colour'"),
+        ("fill", {"threshold": 1.5}, "between 0 and 1"),
+        ("fill", {"threshold": "half"}, "must be a number"),
+        ("fill", {"below": "bin"}, "no zone 'bin' in place.zones"),
+        ("fill", {"limit": 0.3}, "keys threshold, below, above"),
+        ("colour", None, "needs a rule"),
+        ("colour", {"teal": "full"}, "unknown colour name 'teal'"),
+        ("colour", {"orange": "bin"}, "no zone 'bin'"),
+    ],
+)
+def test_a_bad_rule_is_a_one_line_error(by, rule, message) -> None:
+    with pytest.raises(TaskError, match=message) as info:
+        SortRule.make(Config(), by, rule)
+    assert "\n" not in str(info.value)
+
+
+# --------------------------------------------------------------------------- on the simulator
+
+
+@pytest.fixture(scope="module")
+def placed():
+    """A grab, then a place into the zone "full", on a bottle-and-cup scene."""
+    config = _config()
+    system = sim_system(config, 3, scene=_scene(BOTTLE, CUP))
+    system.start()
+    system.pump(system.clock() + 1.5)
+    start = {o.spec.name: o.T_base_obj[:3, 3].copy() for o in system.world.objects()}
+    q0 = system.world.joint_positions().copy()
+    refused = {
+        "nothing held": system.run_task("place", place, zone="full"),
+        "unknown zone": system.run_task("place", place, zone="bin"),
+    }
+    q_refused = system.world.joint_positions().copy()
+    grabbed = system.run_task("grab", grab)
+    q_held = system.world.joint_positions().copy()
+    off_table = system.run_task("place", place, x=0.95, y=0.0)
+    q_off = system.world.joint_positions().copy()
+    status = system.run_task("place", place, zone="full")
+    yield {
+        "system": system,
+        "start": start,
+        "refused": refused,
+        "moved_while_refused": float(np.max(np.abs(q_refused - q0))),
+        "grabbed": grabbed,
+        "off_table": off_table,
+        "moved_off_table": float(np.max(np.abs(q_off - q_held))),
+        "status": status,
+    }
+    system.close()
+
+
+def test_place_without_a_held_bottle_or_with_an_unknown_zone_fails_and_nothing_moves(
+    placed,
+) -> None:
+    nothing, unknown = placed["refused"]["nothing held"], placed["refused"]["unknown zone"]
+    assert nothing.phase == "failed" and "nothing is held" in nothing.error
+    assert unknown.phase == "failed" and "no zone 'bin' in place.zones" in unknown.error
+    assert placed["moved_while_refused"] < 1e-3
+
+
+def test_a_spot_off_the_table_is_refused_with_the_bottle_still_held(placed) -> None:
+    assert placed["grabbed"].phase == "succeeded"
+    off = placed["off_table"]
+    assert off.phase == "failed" and "off the table" in off.error
+    assert placed["moved_off_table"] < 1e-3
+
+
+def test_the_bottle_is_set_down_upright_in_the_zone_near_the_asked_spot(placed) -> None:
+    system, status = placed["system"], placed["status"]
+    assert status.phase == "succeeded", status.error
+    result = status.result
+    assert result["ok"] and result["upright"] and result["zone"] == "full"
+    objects = {o.spec.name: o for o in system.world.objects()}
+    bottle = objects["bottle"]
+    asked = np.array(result["asked"])
+    assert bottle.upright and not bottle.held
+    assert np.linalg.norm(bottle.T_base_obj[:2, 3] - asked) < 0.02
+    assert in_zone(system.config, bottle.T_base_obj[:2, 3]) == "full"
+    # Its tracked position agrees with where it truly stands, and the cup did not move.
+    assert np.linalg.norm(bottle.T_base_obj[:2, 3] - np.array(result["placed"])) < 0.02
+    cup = objects["cup"]
+    assert np.linalg.norm(cup.T_base_obj[:3, 3] - placed["start"]["cup"]) < 0.005
+    assert system.world.held_object() is None
+
+
+class _StopMeter(LiquidLevelMeter):
+    """The default meter; on its ``stop_after``-th measurement it presses Stop."""
+
+    def __init__(self, stop_after: int) -> None:
+        super().__init__()
+        self.count, self.stop_after, self.system = 0, stop_after, None
+
+    def measure(self, frame, box, geometry=None):
+        self.count += 1
+        if self.count == self.stop_after and self.system is not None:
+            self.system.stop_task()
+        return super().measure(frame, box, geometry)
+
+
+def test_stop_during_a_sort_ends_it_at_once_and_the_arm_holds_still() -> None:
+    meter = _StopMeter(stop_after=3)
+    with sim_system(_config(), 3, scene=_scene(BOTTLE, CUP), liquid_meter=meter) as system:
+        meter.system = system
+        system.pump(system.clock() + 1.5)
+        status = system.run_task("sort", sort)
+        assert status.phase == "stopped"
+        q_stop = system.world.joint_positions().copy()
+        system.pump(system.clock() + 2.0)
+        assert float(np.max(np.abs(system.world.joint_positions() - q_stop))) < 5e-3
+        assert not system.arm.moving
+        # Nothing moved: the stop came while the first bottle was being measured in place.
+        bottle = next(o for o in system.world.objects() if o.spec.name == "bottle")
+        assert math.dist(bottle.T_base_obj[:2, 3], (BOTTLE.x, BOTTLE.y)) < 0.005
+
+
+def test_a_second_track_inside_the_excluded_one_is_the_same_object() -> None:
+    from armvision.runtime.planning_scene import PlanningScene
+
+    target = Body((0.40, 0.10), 0.035, 0.0, 0.2, "bottle", 1)
+    twin = Body((0.385, 0.105), 0.04, 0.0, 0.2, "bottle", 7)  # 1.6 cm off: inside it
+    neighbour = Body((0.40, 0.175), 0.035, 0.0, 0.2, "bottle", 2)  # 1 cm gap: a real one
+    scene = PlanningScene(0.0, (target, twin, neighbour), ())
+    assert [b.track_id for b in scene.obstacles(1)] == [2]
+    assert [b.track_id for b in scene.obstacles(None)] == [1, 7, 2]
