@@ -2,8 +2,8 @@
 view, built with the Foxglove SDK's typed layout classes (``foxglove.layouts``).
 
 3D view in the arm's base frame (the transforms, the tracks as labelled cylinders with their
-liquid, the camera image projected from its optical frame), the colour image, the depth image,
-the joint angles over time, and the task's status.
+liquid, the planning scene, the camera image projected from its optical frame), the colour
+image, the depth image, the joint angles over time, and the task's status.
 
     python docs/foxglove_layout.py        # rewrites docs/foxglove-layout.json
 """
@@ -28,6 +28,7 @@ def layout() -> fl.Layout:
             follow_tf="vx300s/base_link",
             topics={
                 "/armvision/markers": fl.BaseRendererRosMarkerTopicSettings(visible=True),
+                "/armvision/planning_scene": fl.BaseRendererRosMarkerTopicSettings(visible=True),
                 COLOR: fl.BaseRendererImageTopicSettings(
                     visible=True, camera_info_topic=INFO, distance=0.8
                 ),

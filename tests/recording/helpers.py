@@ -21,6 +21,7 @@ ROS_TYPES = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/armvision/markers": "visualization_msgs/msg/MarkerArray",
+    "/armvision/planning_scene": "visualization_msgs/msg/MarkerArray",
 }
 
 

@@ -142,6 +142,29 @@ def test_joint_states_and_markers(still: Recorded, topics: dict) -> None:
     assert any(m.ns == "liquid" for m in markers)
 
 
+def test_the_planning_scene_is_recorded_where_the_simulator_has_things(
+    still: Recorded, topics: dict
+) -> None:
+    markers = topics["/armvision/planning_scene"][-1][3].markers
+    assert markers[0].action == 3  # DELETEALL: bodies of ended tracks disappear
+    by_ns: dict[str, list] = {}
+    for m in markers[1:]:
+        by_ns.setdefault(m.ns, []).append(m)
+    (table,) = by_ns["scene_table"]
+    assert abs(table.pose.position.z) < 0.01  # the simulated table top is at z = 0
+    bodies = by_ns["scene_bodies"]
+    tracks = topics["/armvision/tracks"][-1][3]["tracks"]
+    assert len(bodies) == len(tracks) == len(still.truth["objects"])
+    for body in bodies:
+        xy = np.array([body.pose.position.x, body.pose.position.y])
+        nearest = min(np.linalg.norm(xy - p[:2]) for p in still.truth["objects"])
+        assert nearest < 0.02 and body.type == 3 and body.text in {"bottle", "cup", "other"}
+    for body, track in zip(bodies, tracks):  # the fitted size with its uncertainty added
+        assert body.scale.x >= 2 * track["radius_m"] - 1e-6
+    arm = by_ns["scene_arm"]
+    assert arm and all(m.type == 5 and len(m.points) == 2 and m.scale.x > 0 for m in arm)
+
+
 def test_json_channels(still: Recorded, topics: dict) -> None:
     ((*_, config),) = topics["/armvision/config"]
     assert config == json.loads(json.dumps(plain(dataclasses.asdict(still.config))))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import cv2
@@ -44,6 +45,7 @@ TOPICS: dict[str, str] = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/armvision/markers": "visualization_msgs/msg/MarkerArray",
+    "/armvision/planning_scene": "visualization_msgs/msg/MarkerArray",
     "/armvision/config": "json",
     "/armvision/camera": "json",
     "/armvision/calibration": "json",
@@ -307,9 +309,11 @@ def _marker(
     rgba: tuple[float, float, float, float],
     text: str = "",
     action: int = 0,
+    points: Sequence[Sequence[float]] = (),
 ) -> Any:
     types = typestore().types
     x, y, z = position
+    point = types["geometry_msgs/msg/Point"]
     return types["visualization_msgs/msg/Marker"](
         header=header(t, BASE_FRAME),
         ns=ns,
@@ -328,7 +332,7 @@ def _marker(
         ),
         lifetime=types["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
         frame_locked=False,
-        points=[],
+        points=[point(x=float(px), y=float(py), z=float(pz)) for px, py, pz in points],
         colors=[],
         texture_resource="",
         texture=types["sensor_msgs/msg/CompressedImage"](
@@ -342,8 +346,87 @@ def _marker(
     )
 
 
-CYLINDER, TEXT = 3, 9  # visualization_msgs/Marker types
+CUBE, CYLINDER, LINE_LIST, CUBE_LIST, TEXT = 1, 3, 5, 6, 9  # visualization_msgs/Marker types
 DELETEALL = 3  # visualization_msgs/Marker action
+
+#: Planning-scene marker colours (RGBA 0..1): the table, collision bodies, occupied cells, arm.
+SCENE_COLOURS = {
+    "table": (0.6, 0.6, 0.6, 0.25),
+    "body": (1.0, 0.55, 0.1, 0.3),
+    "occupied": (0.9, 0.2, 0.2, 0.6),
+    "arm": (0.3, 0.9, 0.4, 0.35),
+}
+#: The table drawn as a square this wide (m) in front of the arm's base.
+SCENE_TABLE_SIZE_M = 1.2
+
+
+def scene_markers(t: float, scene: dict[str, Any]) -> Any:
+    """``visualization_msgs/MarkerArray`` of a planning scene (``PlanningScene.to_dict()``):
+    a DELETEALL first, then the table as a thin square at its height, every collision body
+    (tracks with their uncertainty added) as a cylinder from its bottom to its top, the
+    occupancy grid's cells outside every body as one cube list (a cube of the cell's size at
+    each cell's top) and the arm's link capsules as lines as thick as the capsules."""
+    markers = [_marker(t, "scene", 0, CUBE, (0, 0, 0), (1, 1, 1), (0, 0, 0, 0), "", DELETEALL)]
+    z = float(scene["table_z"])
+    size = SCENE_TABLE_SIZE_M
+    markers.append(
+        _marker(
+            t,
+            "scene_table",
+            0,
+            CUBE,
+            (size / 2, 0.0, z - 0.0025),
+            (size, size, 0.005),
+            SCENE_COLOURS["table"],
+        )
+    )
+    for k, body in enumerate(scene["bodies"]):
+        (x, y), r = body["xy"], body["radius"]
+        height = max(body["top"] - body["bottom"], 1e-3)
+        centre = (x, y, body["bottom"] + height / 2)
+        markers.append(
+            _marker(
+                t,
+                "scene_bodies",
+                k,
+                CYLINDER,
+                centre,
+                (2 * r, 2 * r, height),
+                SCENE_COLOURS["body"],
+                body["label"],
+            )
+        )
+    cells = scene["occupied_cells"]
+    if cells:
+        side = float(np.sqrt(2.0) * cells[0]["radius"])  # the cell: its body is the circumcircle
+        tops = [(c["xy"][0], c["xy"][1], c["top"] - side / 2) for c in cells]
+        markers.append(
+            _marker(
+                t,
+                "scene_occupied",
+                0,
+                CUBE_LIST,
+                (0, 0, 0),
+                (side, side, side),
+                SCENE_COLOURS["occupied"],
+                points=tops,
+            )
+        )
+    for k, link in enumerate(scene["arm"] or ()):
+        width = 2 * float(link["radius"])
+        markers.append(
+            _marker(
+                t,
+                "scene_arm",
+                k,
+                LINE_LIST,
+                (0, 0, 0),
+                (width, 0.0, 0.0),
+                SCENE_COLOURS["arm"],
+                points=(link["a"], link["b"]),
+            )
+        )
+    return typestore().types["visualization_msgs/msg/MarkerArray"](markers=markers)
 
 
 def track_markers(t: float, tracks: list[dict[str, Any]]) -> Any:

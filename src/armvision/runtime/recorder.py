@@ -535,6 +535,9 @@ class Recorder:
             out.write("/tf", t, ros.tf_message(transforms))
         out.write("/armvision/markers", t, ros.track_markers(t, tracks))
         out.write(
+            "/armvision/planning_scene", t, ros.scene_markers(t, state.planning_scene.to_dict())
+        )
+        out.write(
             "/armvision/tracks",
             t,
             plain({"t": t, "tracks": tracks, "T_base_cam": np.asarray(state.T_base_cam)}),
