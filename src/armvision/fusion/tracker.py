@@ -14,8 +14,8 @@ bottle standing still is averaged). Per camera frame:
    left is matched once more by distance alone within ``reassociation_radius`` (an object
    that stopped abruptly is gated out by its own prediction, see ``_reassociate``);
 3. associated tracks are updated; a detection left over starts a tentative track. A
-   detection whose fitted radius is dr off its track's counts with dr^2 more variance per axis,
-   in the association and the update (``SIZE_KNOWN_AFTER``);
+   detection whose fitted radius is dr off its track's (beyond the fit's scatter) counts with
+   dr^2 more variance per axis, in the association and the update (``SIZE_KNOWN_AFTER``);
 4. a tentative track is confirmed once it has ``confirm_hits`` hits in its last
    ``confirm_window`` frames (M of N), and dropped when it can no longer get there; any track
    unseen for ``drop_after_s`` seconds is dropped.
@@ -60,10 +60,13 @@ NEW_TRACK_SPEED_SIGMA = 0.2
 #: Size (radius, height) of a track: the median of its last this many detections.
 SIZE_WINDOW = 15
 #: A track's radius counts against a detection's once it has this many radii: a detection
-#: whose fitted radius is off the track's by dr has a centre about dr off too (a partly hidden
-#: object's visible arc fitted with a third of its radius, or a circle across two objects), so
-#: dr^2 is added to its covariance on each axis.
+#: whose fitted radius is off the track's by more than the fit's own scatter
+#: (``SIZE_TOLERANCE_M``) by dr has a centre about dr off too (a partly hidden object's
+#: visible arc fitted with a third of its radius, or a circle across two objects), so dr^2 is
+#: added to its covariance on each axis. Within the scatter nothing changes: a weight that
+#: followed every millimetre of radius would make the track depend on pixel noise.
 SIZE_KNOWN_AFTER = 5
+SIZE_TOLERANCE_M = 0.005
 _H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 
@@ -225,10 +228,11 @@ class _Track:
         return max(sorted(self.votes), key=lambda k: self.votes[k])
 
     def size_variance(self, m: ObjectMeasurement) -> float:
-        """dr^2 between the detection's radius and the track's (0 while either is unknown)."""
+        """dr^2, dr how far the detection's radius is off the track's beyond
+        ``SIZE_TOLERANCE_M`` (0 while either is unknown)."""
         if m.radius is None or len(self.radii) < SIZE_KNOWN_AFTER:
             return 0.0
-        return (m.radius - float(np.median(self.radii))) ** 2
+        return max(abs(m.radius - float(np.median(self.radii))) - SIZE_TOLERANCE_M, 0.0) ** 2
 
     def state(self, t: float | None = None) -> TrackState:
         f = self.filter
