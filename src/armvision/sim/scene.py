@@ -876,9 +876,25 @@ def generate_cluttered_scene(config: Config, seed: int) -> SceneSpec:
         random_cluttered_object(rng, f"object{i}", kind)
         for i, kind in enumerate(cluttered_kinds(rng, n))
     ]
+    return _placed_scene(config, seed, rng, T_base_cam, drafts)
+
+
+def _placed_scene(
+    config: Config,
+    seed: int,
+    rng: np.random.Generator,
+    T_base_cam: np.ndarray,
+    drafts: list[ObjectSpec],
+    bearing_range: tuple[float, float] = OBJECT_BEARING_RANGE,
+) -> SceneSpec:
+    """A hard bench's scene from its drafted objects: placed close together
+    (:func:`place_cluttered`) with room for the loose tags, which get free ids and random
+    turns, and the room's random lighting."""
     tag_half = assets.tag_outer_size(config.tag.size) / math.sqrt(2.0)
     cam_xy = (float(T_base_cam[0, 3]), float(T_base_cam[1, 3]))
-    objects, tag_xy = place_cluttered(rng, drafts, cam_xy, (tag_half,) * sim.loose_tags)
+    objects, tag_xy = place_cluttered(
+        rng, drafts, cam_xy, (tag_half,) * config.sim.loose_tags, bearing_range=bearing_range
+    )
     free_ids = [i for i in range(100) if i != config.tag.id]
     loose = tuple(
         LooseTag(free_ids[k], x, y, float(rng.uniform(-math.pi, math.pi)), config.tag.size)
@@ -940,18 +956,7 @@ def generate_sort_scene(config: Config, seed: int) -> SceneSpec:
         kind = str(DISTRACTOR_KINDS[int(rng.integers(len(DISTRACTOR_KINDS)))])
         drafts.append(random_cluttered_object(rng, f"object{n_bottles + j}", kind))
     drafts = [drafts[i] for i in rng.permutation(len(drafts))]
-    tag_half = assets.tag_outer_size(config.tag.size) / math.sqrt(2.0)
-    cam_xy = (float(T_base_cam[0, 3]), float(T_base_cam[1, 3]))
-    objects, tag_xy = place_cluttered(
-        rng, drafts, cam_xy, (tag_half,) * sim.loose_tags, bearing_range=SORT_BEARING_RANGE
-    )
-    free_ids = [i for i in range(100) if i != config.tag.id]
-    loose = tuple(
-        LooseTag(free_ids[k], x, y, float(rng.uniform(-math.pi, math.pi)), config.tag.size)
-        for k, (x, y) in enumerate(tag_xy)
-    )
-    lighting = random_lighting(np.random.default_rng([seed, 0x11647]))
-    return SceneSpec(T_base_cam, tuple(objects), loose, lighting)
+    return _placed_scene(config, seed, rng, T_base_cam, drafts, SORT_BEARING_RANGE)
 
 
 def bench_scene(config: Config) -> SceneSpec:
