@@ -275,6 +275,18 @@ def _ui_recorder(path: str | None, config: Config, system: System):
     return recorder
 
 
+def _trial_options(parser: argparse.ArgumentParser, trials: int) -> None:
+    """The options of an evaluation over random scenes run as task trials (grab, sort)."""
+    parser.add_argument("--trials", type=runs, default=trials, help=f"scenes (default {trials})")
+    parser.add_argument("--seed", type=seed, default=0, help="first scene seed (default 0)")
+    parser.add_argument(
+        "--calibration",
+        choices=("calibrate", "truth"),
+        default="calibrate",
+        help="calibrate once with the tag (default) or use the simulator's camera pose",
+    )
+
+
 def add_parsers(sub: Any, eval_sub: Any) -> None:
     """Add the demo, task and task-eval commands to ``armvision``'s parsers."""
     demo = sub.add_parser(
@@ -355,27 +367,13 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
     ui.set_defaults(func=cmd_ui)
 
     grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")
-    grab_eval.add_argument("--trials", type=runs, default=50, help="scenes (default 50)")
-    grab_eval.add_argument("--seed", type=seed, default=0, help="first scene seed (default 0)")
-    grab_eval.add_argument(
-        "--calibration",
-        choices=("calibrate", "truth"),
-        default="calibrate",
-        help="calibrate once with the tag (default) or use the simulator's camera pose",
-    )
+    _trial_options(grab_eval, trials=50)
     grab_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
     arm_option(grab_eval)
     grab_eval.set_defaults(func=cmd_eval_grab)
 
     sort_eval = eval_sub.add_parser("sort", help="sorting bottles by fill over random sort scenes")
-    sort_eval.add_argument("--trials", type=runs, default=20, help="scenes (default 20)")
-    sort_eval.add_argument("--seed", type=seed, default=0, help="first scene seed (default 0)")
-    sort_eval.add_argument(
-        "--calibration",
-        choices=("calibrate", "truth"),
-        default="calibrate",
-        help="calibrate once with the tag (default) or use the simulator's camera pose",
-    )
+    _trial_options(sort_eval, trials=20)
     sort_eval.add_argument("--jobs", type=runs, default=1, help="trials at a time (processes)")
     sort_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
     arm_option(sort_eval)
