@@ -220,6 +220,30 @@ def test_a_poor_view_presents_the_bottle_measures_it_and_puts_it_back() -> None:
         assert system.world.held_object() is None
 
 
+def test_a_carry_out_of_reach_stands_the_bottle_back_where_it_was_taken(monkeypatch) -> None:
+    # The view is poor, so the bottle is picked; the presentation spot is then one the arm
+    # cannot reach holding the bottle level (1 m out), so the carry fails after the lift.
+    from armvision.tasks import analyze as analyze_module
+    from armvision.tasks.spots import Spot
+
+    def far_spot(*args: object, **kwargs: object) -> Spot:
+        return Spot((1.0, 0.0), 0.0, 1.0, (0.0, 0.0, 10.0, 10.0))
+
+    monkeypatch.setattr(analyze_module, "presentation_spot", far_spot)
+    config = _config(min_box_height_px=2000.0)
+    with sim_system(config, 7, scene=_scene(TARGET, FRONT, SIDE)) as system:
+        start = {o.spec.name: o.T_base_obj[:2, 3].copy() for o in system.world.objects()}
+        result = analyze(_context(system, config))
+        assert not result.ok and result.picked
+        assert "cannot reach" in result.reason
+        assert result.reason.endswith("the bottle is back in its place"), result.reason
+        for state in system.world.objects():
+            moved = np.linalg.norm(state.T_base_obj[:2, 3] - start[state.spec.name])
+            assert moved < (0.015 if state.spec.name == "target" else 0.002)
+            assert state.upright and not state.held
+        assert system.world.held_object() is None
+
+
 # --------------------------------------------------------------------------- pure helpers
 
 

@@ -263,3 +263,43 @@ def test_a_second_track_inside_the_excluded_one_is_the_same_object() -> None:
     scene = PlanningScene(0.0, (target, twin, neighbour), ())
     assert [b.track_id for b in scene.obstacles(1)] == [2]
     assert [b.track_id for b in scene.obstacles(None)] == [1, 7, 2]
+
+
+def test_a_bottle_refused_for_its_neighbours_is_sorted_once_the_one_in_front_is_moved() -> None:
+    # The inner bottle stands in a half ring of cans 12 cm away, the outer bottle 8 cm in
+    # front of it on the base's side: every approach to the inner one is blocked (the cans'
+    # side and the outer bottle's), the outer one is free. The sort looks at the inner one
+    # first (the camera faces the base from beyond them), is refused, sorts the outer one and
+    # then takes the inner one from the side the outer one left free.
+    inner = ObjectSpec("inner", "bottle", 0.030, 0.20, 0.1, "juice", x=0.45, y=0.0)
+    outer = ObjectSpec("outer", "bottle", 0.030, 0.20, 0.7, "juice", x=0.37, y=0.0)
+    cans = [
+        ObjectSpec(
+            f"can{k}",
+            "can",
+            0.033,
+            0.12,
+            0.0,
+            "water",
+            x=0.45 + 0.12 * math.cos(a),
+            y=0.12 * math.sin(a),
+        )
+        for k, a in enumerate(np.radians([45.0, 90.0, -45.0, -90.0]))
+    ]
+    config = _config()
+    with sim_system(config, 3, scene=_scene(inner, outer, *cans)) as system:
+        system.pump(system.clock() + 1.5)
+        status = system.run_task("sort", sort)
+        system.pump(system.clock() + 2.0)
+        objects = {o.spec.name: o for o in system.world.objects()}
+        reports = status.result["bottles"]
+    assert status.phase == "succeeded", status.error
+    for name, zone in (("inner", "empty"), ("outer", "full")):
+        assert objects[name].upright
+        assert in_zone(config, objects[name].T_base_obj[:2, 3]) == zone
+    for can in cans:
+        assert math.dist(objects[can.name].T_base_obj[:2, 3], (can.x, can.y)) < 0.02
+    first, second = reports
+    assert math.dist(first["start"], (inner.x, inner.y)) < 0.02
+    assert first["action"] == "placed" and first["tries"] == 2
+    assert second["action"] == "placed" and second["tries"] == 1

@@ -120,6 +120,8 @@ def run_trial(
             "retries": result.get("retries"),
             "replans": result.get("replans"),
             "joint_paths_planned": result.get("joint_paths_planned"),
+            "approach_deg": result.get("approach_deg"),
+            "ahead_m": result.get("ahead"),
             "collateral": collateral,
         }
 

@@ -59,11 +59,14 @@ upright, nothing else moved. Picking and presenting takes 40-50 s of arm time (t
 Units: metres, seconds, pixels for boxes; positions in the base frame unless named ``_cam``.
 The timeout ``analyze.timeout_s`` bounds finding and measuring; once the bottle has been
 moved it is always put back (Stop still halts everything at once: TaskStopped propagates,
-the arm halts where it is, the gripper as it was).
+the arm halts where it is, the gripper as it was). A carry the arm cannot make (a spot it
+cannot reach holding the bottle level) stands the bottle straight back where it was taken,
+when the gripper is still above that spot (:meth:`~armvision.tasks.carry.Carrier.stand_back`).
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -82,7 +85,7 @@ from armvision.runtime.context import TaskContext
 from armvision.runtime.state import ASSOCIATION_M, LiquidEstimate, SystemState, average_levels
 from armvision.tasks.carry import Abort, Carrier, Held
 from armvision.tasks.colour import colour_name
-from armvision.tasks.grab import GrabResult, grab
+from armvision.tasks.grab import GrabResult, grab, holding
 from armvision.tasks.spots import Box, Obstacle, Spot, bottle_box, presentation_spot
 
 Array = NDArray[np.float64]
@@ -568,5 +571,10 @@ def analyze(ctx: TaskContext, track_id: int | None = None) -> AnalyzeResult:
     try:
         return job.run()
     except Abort as exc:
+        if job.picked and holding(ctx.arm):
+            # The carry could not be made (a spot out of reach held level): stand the bottle
+            # back where it was taken if the arm has not left it, rather than keep holding it.
+            with contextlib.suppress(Abort):
+                job.carrier.stand_back()
         where = f"; the bottle is {job.carrier.where}" if job.picked else ""
         return job.result(False, f"{exc}{where}")

@@ -48,6 +48,30 @@ SEGMENT_M = 0.06
 #: this (near the base a level gripper cannot reach low points), degrees. A held bottle is
 #: always carried level, so it stays upright.
 EMPTY_MAX_PITCH_DEG = 90
+#: A bottle that cannot be carried is stood back where it was taken if the gripper is still
+#: this near above that spot, m.
+STAND_BACK_M = 0.01
+
+
+def _cannot_reach(p: ArrayLike, yaw: float) -> str:
+    where = ", ".join(f"{v:.3f}" for v in np.asarray(p, dtype=float))
+    return f"the gripper cannot reach ({where}) m facing {math.degrees(yaw):.0f} degrees"
+
+
+def _segments(
+    p_from: Array, yaw_from: float, p_goal: ArrayLike, yaw_goal: float
+) -> list[tuple[Array, float, float]]:
+    """The points of a straight move (position, yaw, the segment's length): segments at most
+    :data:`SEGMENT_M` long, the yaw turning evenly by the shorter way, 20 degrees a segment
+    at most."""
+    turn = (yaw_goal - yaw_from + math.pi) % (2 * math.pi) - math.pi
+    p_goal = np.asarray(p_goal, dtype=float)
+    length = float(np.linalg.norm(p_goal - p_from))
+    n = max(1, math.ceil(length / SEGMENT_M), math.ceil(abs(turn) / math.radians(20.0)))
+    return [
+        ((1 - k / n) * p_from + (k / n) * p_goal, yaw_from + (k / n) * turn, length / n)
+        for k in range(1, n + 1)
+    ]
 
 
 class Abort(Exception):  # noqa: N818 - control flow inside the analyze task
@@ -61,7 +85,9 @@ def _yaw(T_base_x: Array) -> float:
 
 @dataclass(frozen=True)
 class Held:
-    """The picked bottle: its geometry, where it came from and how it is carried, metres."""
+    """The picked bottle: its geometry, where it came from and how it is carried, metres;
+    ``ahead``: its axis stands this far ahead of the point between the fingertips, along the
+    gripper's heading (a shallow grasp; 0 for a full-depth one)."""
 
     radius: float
     height: float
@@ -69,6 +95,7 @@ class Held:
     grasp_offset: float
     carry_z: float
     home_xy: Array
+    ahead: float = 0.0
 
     @property
     def grasp_z(self) -> float:
@@ -95,8 +122,20 @@ class Held:
         tallest = max([table_z, *obstacle_tops])
         carry_z = max(tallest + CARRY_CLEARANCE_M + grasp_offset, grabbed.grasp_z + gcfg.lift)
         return Held(
-            radius, height, table_z, grasp_offset, carry_z, np.array(grabbed.target[:2], float)
+            radius,
+            height,
+            table_z,
+            grasp_offset,
+            carry_z,
+            np.array(grabbed.target[:2], float),
+            grabbed.ahead,
         )
+
+    def grip_xy(self, xy: ArrayLike, yaw: float) -> Array:
+        """Where the point between the fingertips is when the bottle stands at ``xy`` and the
+        gripper heads ``yaw``."""
+        heading = np.array([math.cos(yaw), math.sin(yaw)])
+        return np.asarray(xy, dtype=float)[:2] - self.ahead * heading
 
 
 class Carrier:
@@ -123,10 +162,7 @@ class Carrier:
         found = level_pose(p, yaw, motion_seed(arm, self.T_base_ee_last), arm.model, max_pitch_deg)
         if found is not None:
             return found
-        raise Abort(
-            f"the gripper cannot reach ({', '.join(f'{v:.3f}' for v in np.asarray(p))}) m facing "
-            f"{math.degrees(yaw):.0f} degrees"
-        )
+        raise Abort(_cannot_reach(p, yaw))
 
     def move(self, what: str, T_base_ee: Array, q: Array, duration: float) -> None:
         """One checked move taking at least ``duration`` (longer if a joint would exceed
@@ -147,15 +183,26 @@ class Carrier:
         sweep the gripper through what stands there)."""
         assert self.T_base_ee_last is not None
         p_from = self.T_base_ee_last[:3, 3].copy()
-        yaw_from = _yaw(self.T_base_ee_last)
-        turn = (yaw_goal - yaw_from + math.pi) % (2 * math.pi) - math.pi
-        p_goal = np.asarray(p_goal, dtype=float)
-        length = float(np.linalg.norm(p_goal - p_from))
-        n = max(1, math.ceil(length / SEGMENT_M), math.ceil(abs(turn) / math.radians(20.0)))
-        for k in range(1, n + 1):
-            s = k / n
-            T, q = self.pose((1 - s) * p_from + s * p_goal, yaw_from + s * turn, max_pitch_deg)
-            self.move(what, T, q, max(SEGMENT_TIME_S, length / n / CARRY_SPEED_M_S))
+        for p, yaw, length in _segments(p_from, _yaw(self.T_base_ee_last), p_goal, yaw_goal):
+            T, q = self.pose(p, yaw, max_pitch_deg)
+            self.move(what, T, q, max(SEGMENT_TIME_S, length / CARRY_SPEED_M_S))
+
+    def unreachable(self, legs: Sequence[tuple[ArrayLike, float, int]]) -> str | None:
+        """Why the straight moves ``legs`` ((goal, yaw, max pitch) each, from the last
+        commanded pose, as :meth:`straight` makes them) cannot all be made, or None: checked
+        before the first moves, so a carry the arm cannot finish does not start."""
+        assert self.T_base_ee_last is not None
+        model = self.ctx.arm.model
+        seed = motion_seed(self.ctx.arm, self.T_base_ee_last)
+        p_from, yaw_from = self.T_base_ee_last[:3, 3].copy(), _yaw(self.T_base_ee_last)
+        for p_goal, yaw_goal, max_pitch_deg in legs:
+            for p, yaw, _ in _segments(p_from, yaw_from, p_goal, yaw_goal):
+                found = level_pose(p, yaw, seed, model, max_pitch_deg)
+                if found is None:
+                    return _cannot_reach(p, yaw)
+                seed = found[1]
+            p_from, yaw_from = np.asarray(p_goal, dtype=float), yaw_goal
+        return None
 
     def finger(self) -> float:
         return float(self.ctx.arm.gripper.get_finger_position())
@@ -164,17 +211,52 @@ class Carrier:
 
     def put_down(self, xy: Array, where: str) -> None:
         """Carry the held bottle at the carry height to above ``xy``, stand it there, release
-        it and :meth:`retreat`."""
+        it and :meth:`retreat`; every point of these moves is checked reachable before the
+        first (Abort, nothing moved, if one is not)."""
         held = self.held
         assert held is not None and self.T_base_ee_last is not None
         yaw = math.atan2(xy[1], xy[0])
         p = self.T_base_ee_last[:3, 3]
+        g = held.grip_xy(xy, yaw)
+        back, top = self.backoff_point(xy), held.table_z + held.height + HOVER_CLEARANCE_M
+        why = self.unreachable(
+            [
+                ([p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last), 0),
+                ([g[0], g[1], held.carry_z], yaw, 0),
+                ([g[0], g[1], held.grasp_z + RELEASE_HEIGHT_M], yaw, 0),
+                ([back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG),
+                ([back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG),
+            ]
+        )
+        if why is not None:
+            raise Abort(why)
         self.straight("lift for carrying", [p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last))
-        self.straight("carry", [xy[0], xy[1], held.carry_z], yaw)
-        self.straight("lower onto the table", [xy[0], xy[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
+        self.straight("carry", [g[0], g[1], held.carry_z], yaw)
+        self.straight("lower onto the table", [g[0], g[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
         self.ctx.open_gripper()
         self.where = where
         self.retreat(xy)
+
+    def stand_back(self) -> bool:
+        """After a move that could not be made with the bottle held, the gripper still above
+        the spot the bottle was taken from (within :data:`STAND_BACK_M`): lower it straight back
+        there, release it, back off along the gripper's own heading (the way the grasp came
+        in) and rise. False, with nothing moved, when the gripper is elsewhere."""
+        held, T = self.held, self.T_base_ee_last
+        if held is None or T is None:
+            return False
+        yaw = _yaw(T)
+        grip = held.grip_xy(held.home_xy, yaw)
+        if float(np.linalg.norm(T[:2, 3] - grip)) > STAND_BACK_M:
+            return False
+        self.straight("stand it back", [grip[0], grip[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
+        self.ctx.open_gripper()
+        self.where = "back in its place"
+        back = grip - (held.radius + BACKOFF_MARGIN_M) * np.array([math.cos(yaw), math.sin(yaw)])
+        self.straight("back off", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        top = held.table_z + held.height + HOVER_CLEARANCE_M
+        self.straight("rise", [back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG)
+        return True
 
     def retreat(self, xy: Array) -> None:
         """From the grasp pose at ``xy``: back off toward the base until the fingertips are
@@ -196,7 +278,8 @@ class Carrier:
         self.straight(
             "down behind the bottle", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG
         )
-        self.straight("approach", [xy[0], xy[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        g = held.grip_xy(xy, yaw)
+        self.straight("approach", [g[0], g[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
         self.ctx.close_gripper()
         if not holding(self.ctx.arm):
             self.ctx.open_gripper()

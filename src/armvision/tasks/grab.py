@@ -69,6 +69,8 @@ from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, pace
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
 GRASP_MARGIN_M = 0.004
+#: Ends the reason of a grab that refused before anything moved (the arm, the gripper).
+NOTHING_MOVED = "(nothing moved)"
 
 
 def holding(arm: Arm) -> bool:
@@ -102,7 +104,9 @@ class GrabResult:
     ``retries`` motions retried; ``duration_s`` from start to end (clock seconds);
     ``replans`` plans made again for a bottle that moved; ``approach_deg`` the heading of the
     final approach (the paper's: the bottle's bearing); ``joint_paths_planned`` moves for which
-    no straight joint line was free and RRT-Connect found the path.
+    no straight joint line was free and RRT-Connect found the path; ``ahead`` how far ahead of
+    the point between the fingertips (along the gripper's heading) the bottle's axis stands,
+    m: 0 but for a shallow grasp (:data:`~armvision.tasks.grasp_plan.AHEADS_M`).
     """
 
     ok: bool
@@ -118,6 +122,7 @@ class GrabResult:
     replans: int = 0
     approach_deg: float | None = None
     joint_paths_planned: int = 0
+    ahead: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -134,6 +139,7 @@ class GrabResult:
             "duration_s": round(self.duration_s, 3),
             "approach_deg": None if self.approach_deg is None else round(self.approach_deg, 1),
             "joint_paths_planned": self.joint_paths_planned,
+            "ahead": round(self.ahead, 4),
         }
 
 
@@ -202,6 +208,7 @@ class _Plan:
     top: float
     waypoint: np.ndarray = field(repr=False)
     grasp: np.ndarray = field(repr=False)
+    ahead: float = 0.0  # the bottle's axis ahead of the point between the fingertips, m
 
 
 def plan_grasp(track: TrackState, cfg: GrabConfig) -> _Plan:
@@ -246,6 +253,7 @@ class _Grab:
             replans=self.replans,
             approach_deg=None if plan is None else math.degrees(plan.yaw),
             joint_paths_planned=self.joint_paths,
+            ahead=0.0 if plan is None else plan.ahead,
         )
 
     def remaining(self) -> float:
@@ -529,6 +537,7 @@ class _PlannedGrab(_Grab):
             top,
             fk(candidate.pregrasp, model),
             fk(candidate.grasp, model),
+            candidate.ahead,
         )
 
     def go_to(self, state: SystemState, track: TrackState, found: list[GraspCandidate]) -> None:
@@ -561,7 +570,7 @@ class _PlannedGrab(_Grab):
                 break
             except _Abort as exc:
                 if attempt == PLAN_LOOKS - 1:
-                    raise _Abort(f"{exc} (nothing moved)") from None
+                    raise _Abort(f"{exc} {NOTHING_MOVED}") from None
                 ctx.sleep(PLAN_LOOK_INTERVAL_S)
         self.adopt(track, found[0])
         self.stages.append("bottle_found")

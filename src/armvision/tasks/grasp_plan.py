@@ -8,7 +8,8 @@ closed-form IK near the one before (so the arm stays on one branch):
 1. **hover**: above the pre-grasp point, higher than everything near it;
 2. **descend** straight down to the **pre-grasp** point, ``standoff`` short of the bottle's
    axis on the approach line, at the grasp height (the table + ``grasp_height_fraction`` h);
-3. **approach** straight in until the bottle's axis is between the fingertips;
+3. **approach** straight in until the bottle's axis is between the fingertips (where that is
+   blocked, up to 2 cm short of it, :data:`AHEADS_M`: a shallower grasp);
 4. **close**: the fingers' swept volume, from open to closed on the bottle (r + the pad inset);
 5. **lift** straight up ``grab.lift``, the fingers closed.
 
@@ -55,6 +56,14 @@ MIN_STANDOFF_M = 0.085
 GRASP_RAISES = (0.0, 0.1)
 #: Gripper pitches tried (down, about its own y axis), degrees; a level one is preferred.
 PITCHES_DEG = (0, 15, 30)
+#: How far ahead of the point between the fingertips the bottle's axis may stand, m: a
+#: shallower grasp, whose fingertips reach less far past the bottle (28.5 mm at 0), leaves
+#: room for a neighbour close behind it. The pads (box geoms -39.5..+28.5 mm along the
+#: gripper's x from that point, ``sim/data/vx300s.xml``) still close on the bottle's widest
+#: line with 8.5 mm of pad beyond it at the most. Tried only where the full depth is blocked.
+AHEADS_M = (0.0, 0.012, 0.02)
+#: A candidate's score loses this per metre of ``ahead`` (a full-depth grasp holds best).
+AHEAD_WEIGHT = 0.3
 #: Straight steps are followed by IK every this far, m (the joint lines between are checked).
 CHECK_STEP_M = 0.02
 #: The grasp pose's IK branches tried, most natural first.
@@ -74,14 +83,16 @@ EXECUTE_STEP_M = 0.05
 @dataclass(frozen=True)
 class GraspCandidate:
     """One way to take the bottle: the approach heading ``yaw`` (the gripper's), stand-off,
-    pitch, grasp height (z); the joint configurations to execute per step (``descend``,
-    ``approach``, ``lift``: each step's moves in order, ``hover`` first); its least
-    clearance and score."""
+    pitch, grasp height (z), how far ahead of the point between the fingertips the bottle's
+    axis stands (``ahead``, m; :data:`AHEADS_M`); the joint configurations to execute per
+    step (``descend``, ``approach``, ``lift``: each step's moves in order, ``hover`` first);
+    its least clearance and score."""
 
     yaw: float
     standoff: float
     pitch_deg: int
     grasp_z: float
+    ahead: float
     hover: Array = field(repr=False)
     descend: tuple[Array, ...] = field(repr=False)
     approach: tuple[Array, ...] = field(repr=False)
@@ -213,6 +224,7 @@ def _candidate(
     standoff: float,
     pitch_deg: int,
     grasp_z: float,
+    ahead: float,
     hover_z: float,
     check: Checker,
     cfg: GrabConfig,
@@ -221,7 +233,7 @@ def _candidate(
     """One candidate, checked (see the module docstring); _Blocked with what blocks it."""
     R = rpy_to_R(0.0, math.radians(pitch_deg), yaw)
     u = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-    p_grasp = np.array([bottle.xy[0], bottle.xy[1], grasp_z])
+    p_grasp = np.array([bottle.xy[0], bottle.xy[1], grasp_z]) - ahead * u
     p_pre = p_grasp - standoff * u
     p_hover = np.array([p_pre[0], p_pre[1], max(hover_z, p_pre[2])])
     p_lift = p_grasp + np.array([0.0, 0.0, cfg.lift])
@@ -276,12 +288,19 @@ def _candidate(
     bearing = math.atan2(bottle.xy[1], bottle.xy[0])
     facing = math.cos((yaw - bearing + math.pi) % (2 * math.pi) - math.pi)
     raise_m = grasp_z - bottle.grasp_z
-    score = min(least, ENOUGH_CLEARANCE_M) + 0.01 * facing - 0.0002 * pitch_deg - 0.02 * raise_m
+    score = (
+        min(least, ENOUGH_CLEARANCE_M)
+        + 0.01 * facing
+        - 0.0002 * pitch_deg
+        - 0.02 * raise_m
+        - AHEAD_WEIGHT * ahead
+    )
     return GraspCandidate(
         yaw,
         standoff,
         pitch_deg,
         grasp_z,
+        ahead,
         q_hover,
         run_descend,
         run_approach,
@@ -319,17 +338,18 @@ def plan_grasps(
         reasons: list[str] = []
         u = np.array([math.cos(yaw), math.sin(yaw)])
         options = [
-            (max(share * cfg.standoff, MIN_STANDOFF_M), raise_share, pitch)
+            (max(share * cfg.standoff, MIN_STANDOFF_M), raise_share, pitch, ahead)
+            for ahead in AHEADS_M
             for raise_share in GRASP_RAISES
             for share in STANDOFF_SHARES
             for pitch in PITCHES_DEG
         ]
-        for standoff, raise_share, pitch in options:
-            hover_z = hover_height(bottle, scene, bottle.xy - standoff * u)
+        for standoff, raise_share, pitch, ahead in options:
+            hover_z = hover_height(bottle, scene, bottle.xy - (standoff + ahead) * u)
             grasp_z = bottle.grasp_z + raise_share * bottle.height
             try:
                 found = _candidate(
-                    bottle, yaw, standoff, pitch, grasp_z, hover_z, check, cfg, model
+                    bottle, yaw, standoff, pitch, grasp_z, ahead, hover_z, check, cfg, model
                 )
                 break
             except _Blocked as exc:

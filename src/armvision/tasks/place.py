@@ -160,9 +160,10 @@ def _reach_poses(xy: Array, held: Held) -> list[tuple[Array, float, int]]:
     yaw = math.atan2(xy[1], xy[0])
     back = xy * max(d - held.radius - BACKOFF_MARGIN_M, 0.0) / max(d, 1e-9)
     top = held.table_z + held.height + HOVER_CLEARANCE_M
+    grip = held.grip_xy(xy, yaw)
     return [
-        (np.array([xy[0], xy[1], held.grasp_z]), yaw, 0),
-        (np.array([xy[0], xy[1], held.carry_z]), yaw, 0),
+        (np.array([grip[0], grip[1], held.grasp_z]), yaw, 0),
+        (np.array([grip[0], grip[1], held.carry_z]), yaw, 0),
         (np.array([back[0], back[1], held.grasp_z]), yaw, EMPTY_MAX_PITCH_DEG),
         (np.array([back[0], back[1], top]), yaw, EMPTY_MAX_PITCH_DEG),
     ]
@@ -324,8 +325,6 @@ def plan_set_down(
     carry_z = max(held.carry_z, float(p0[2]))
     release_z = held.grasp_z + RELEASE_HEIGHT_M
     p_up = np.array([p0[0], p0[1], carry_z])
-    p_above = np.array([spot[0], spot[1], carry_z])
-    p_release = np.array([spot[0], spot[1], release_z])
     top = held.table_z + held.height + HOVER_CLEARANCE_M
     where = f"({spot[0]:.3f}, {spot[1]:.3f}) m"
     check = Checker(scene, None, model)
@@ -348,6 +347,11 @@ def plan_set_down(
         R = rot_z(turn) @ R0
         u = np.array([R[0, 0], R[1, 0], 0.0])
         u /= max(float(np.linalg.norm(u)), 1e-9)
+        # The gripper heads along u: the point between the fingertips stands short of the spot
+        # by how far ahead of it the bottle is held.
+        grip = held.grip_xy(spot, math.atan2(u[1], u[0]))
+        p_above = np.array([grip[0], grip[1], carry_z])
+        p_release = np.array([grip[0], grip[1], release_z])
         p_back = p_release - (held.radius + BACKOFF_MARGIN_M + FINGERTIP_AHEAD_M) * u
         p_rise = np.array([p_back[0], p_back[1], max(top, release_z)])
         lift_turn = turn if during_lift else 0.0

@@ -18,7 +18,11 @@ One bottle after the other, until none is left to look at:
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
 4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware; a refusal moves nothing
-   and the bottle is skipped as unreachable, with the planner's reason).
+   and the bottle is skipped as unreachable, with the planner's reason, for now: once the
+   other bottles have been looked at, each refused one is tried again if some bottle has
+   been set down since its refusal, as a neighbour taken away may free an approach; at most
+   :data:`MAX_TRIES` grasps in all). A bottle whose pick for the measurement was refused
+   waits the same way.
 5. **Place** it on a free spot of the zone (:class:`~armvision.tasks.place.Placer`: the
    analyze task's carrying moves, then the check of where it stands). Should the zone have
    no spot for the bottle as the fingers measured it, it is put back where it stood.
@@ -47,7 +51,7 @@ from armvision.runtime.context import TaskContext, TaskError
 from armvision.tasks.analyze import AnalyzeResult, analyze
 from armvision.tasks.carry import Held
 from armvision.tasks.colour import COLOUR_PALETTE
-from armvision.tasks.grab import grab
+from armvision.tasks.grab import NOTHING_MOVED, grab
 from armvision.tasks.place import (
     PlaceError,
     Placer,
@@ -66,6 +70,8 @@ SAME_BOTTLE_M = 0.06
 MAX_BOTTLES = 12
 #: Before the first bottle, the sort waits this long for tracks to settle, s.
 SETTLE_S = 1.0
+#: A bottle whose grasp is refused is tried at most this many times in all.
+MAX_TRIES = 3
 
 
 @dataclass(frozen=True)
@@ -165,11 +171,13 @@ class BottleReport:
     zone: str | None = None
     place: dict[str, Any] | None = None
     picked: bool = False  # the analysis picked it to present it (and put it back)
+    tries: int = 1  # grasps tried (a refused one is tried again after others moved)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "track_id": self.track_id,
             "picked": self.picked,
+            "tries": self.tries,
             "start": [round(v, 4) for v in self.start],
             "action": self.action,
             "reason": self.reason,
@@ -212,11 +220,24 @@ def in_zone(config: Config, xy: Array) -> str | None:
     return None
 
 
+@dataclass
+class _Waiting:
+    """A bottle refused before anything moved: its report, the zone its measurement chose
+    (None: its pick for the measurement was refused), why, and how many bottles had been
+    set down by then."""
+
+    report: BottleReport
+    zone: str | None
+    why: str
+    moved: int
+
+
 class _Sort:
     def __init__(self, ctx: TaskContext, rule: SortRule) -> None:
         self.ctx, self.rule = ctx, rule
         self.start = ctx.now()
         self.reports: list[BottleReport] = []
+        self.waiting: list[_Waiting] = []
 
     def handled(self, track: TrackState) -> bool:
         return any(
@@ -255,7 +276,8 @@ class _Sort:
             self.handle(track, report)
             if report.action == "failed" and holding(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
-                break
+                return self.result()
+        self.retry_waiting()
         return self.result()
 
     def progress(self, step: float, message: str) -> None:
@@ -272,6 +294,8 @@ class _Sort:
             report.reason = f"not measured: {measured.reason}"
             if measured.picked and holding(ctx):
                 report.action = "failed"  # the analysis could not put it back
+            elif NOTHING_MOVED in measured.reason:
+                self.wait(report, None, "")  # its pick was refused: try again later
             return
         zone, why = rule.zone_for(measured)
         if zone is None:
@@ -284,6 +308,11 @@ class _Sort:
         if now is None:
             report.reason = f"{why}: its track was lost after the measurement"
             return
+        self.take(now, report, zone, why)
+
+    def take(self, now: TrackState, report: BottleReport, zone: str, why: str) -> None:
+        """Grab the measured bottle (track ``now``) and place it in ``zone``."""
+        ctx = self.ctx
         if in_zone(ctx.config, now.p_base[:2]) == zone:
             report.action, report.reason = "in zone", f"{why}: already in {zone!r}"
             return
@@ -297,6 +326,8 @@ class _Sort:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
             if holding(ctx):
                 report.action = "failed"  # something stays in the fingers
+            elif NOTHING_MOVED in grabbed.reason:
+                self.wait(report, zone, why)
             return
         state = ctx.state()
         tops = [b.top for b in state.planning_scene.obstacles(now.id)]
@@ -313,6 +344,44 @@ class _Sort:
         report.place = placed.to_dict()
         report.action = "placed" if placed.released else "failed"
         report.reason = f"{why}: {placed.reason}"
+        if report.tries > 1:
+            report.reason += f" (try {report.tries}, after other bottles were moved)"
+
+    def wait(self, report: BottleReport, zone: str | None, why: str) -> None:
+        """Keep a bottle whose grasp was refused before anything moved (its neighbours block
+        every approach) for another try once some other bottle has been moved."""
+        self.waiting.append(_Waiting(report, zone, why, self.moved()))
+
+    def moved(self) -> int:
+        """How many bottles the sort has set down so far (each changes the scene)."""
+        return sum(r.action == "placed" for r in self.reports)
+
+    def retry_waiting(self) -> None:
+        """Try each refused bottle again while some other bottle has been moved since its
+        refusal (a neighbour taken away may free an approach); a bottle is tried at most
+        :data:`MAX_TRIES` times."""
+        ctx = self.ctx
+        while True:
+            ready = [w for w in self.waiting if w.moved < self.moved()]
+            if not ready:
+                return
+            waiting = ready[0]
+            self.waiting.remove(waiting)
+            report = waiting.report
+            if report.tries >= MAX_TRIES:
+                continue
+            report.tries += 1
+            track = self.track_near(np.array(report.start))
+            if track is None:
+                report.reason += "; its track was lost before another try"
+                continue
+            if waiting.zone is None:
+                self.handle(track, report)
+            else:
+                self.take(track, report, waiting.zone, waiting.why)
+            if report.action == "failed" and holding(ctx):
+                report.reason += "; the sort ends here, the bottle still in the gripper"
+                return
 
     def put_back(self, placer: Placer, report: BottleReport, why: str) -> None:
         """Stand the held bottle back where it came from."""
