@@ -530,7 +530,9 @@ class GrabConfig:
     directions all around the bottle the free one with the best clearance and reach, checked
     against the planning scene with ``clearance`` m to spare, and plans in joint space (OMPL's
     RRT-Connect, up to ``plan_time_s`` per query) where no straight move is free; ``paper``
-    is the paper's straight approach from the base, the baseline.
+    is the paper's straight approach from the base, the baseline. ``top_grasp``: where no
+    approach from the side is free, the collision-aware planner tries grasps from above, by
+    the cap (the gripper pointing down).
     """
 
     safe_pose: Vector3 = (0.1, 0.0, 0.65)
@@ -547,6 +549,7 @@ class GrabConfig:
     clearance: Annotated[Float, Field(ge=0.0, le=0.1)] = 0.01
     approach_candidates: Annotated[Int, Field(ge=4, le=360)] = 24
     plan_time_s: Annotated[Float, Field(gt=0.0, le=60.0)] = 2.0
+    top_grasp: Bool = True
 
 
 @dataclass(config=_STRICT)

@@ -182,6 +182,43 @@ def test_a_bottle_blocked_all_round_is_refused_and_nothing_moves() -> None:
             assert np.linalg.norm(o.T_base_obj[:3, 3] - start[o.spec.name]) < 1e-3
 
 
+def test_a_bottle_in_a_tight_cluster_is_taken_from_above_and_nothing_else_moves() -> None:
+    # Two bottles 1.5 cm from it behind, a can 1.5 cm in front: no room beside it for the
+    # fingers, so it is grasped by the cap from above and lifted.
+    target = ObjectSpec("target", "bottle", 0.03, 0.20, 0.5, "juice", x=0.42, y=0.0)
+    behind = [
+        ObjectSpec(
+            f"behind{k}",
+            "bottle",
+            0.03,
+            0.20,
+            0.5,
+            "cola",
+            x=0.42 + 0.075 * math.cos(a),
+            y=0.075 * math.sin(a),
+        )
+        for k, a in enumerate(np.radians([60.0, -60.0]))
+    ]
+    can = ObjectSpec("can", "can", 0.033, 0.12, 0.0, "water", x=0.342, y=0.0)
+    with sim_system(_config(), seed=3, scene=_scene(target, *behind, can)) as system:
+        start = {o.spec.name: o.T_base_obj[:3, 3].copy() for o in system.world.objects()}
+        system.pump(system.clock() + 1.5)
+        state = system.snapshot()
+        track = min(state.bottles(), key=lambda t: float(np.hypot(*(t.p_base[:2] - [0.42, 0.0]))))
+        status = system.run_task("grab", grab, track_id=track.id)
+        assert status.phase == "succeeded", status.error
+        assert status.result["from_above"]
+        system.pump(system.clock() + 2.0)
+        assert system.world.held_object() == "target"
+        lifted = system.world.T_base_object("target")[:3, 3] - start["target"]
+        assert lifted[2] == pytest.approx(0.10, abs=0.015)  # a cap grasp may slip a little
+        assert np.hypot(*lifted[:2]) < 0.01
+        for o in system.world.objects():
+            if o.spec.name != "target":
+                assert np.linalg.norm(o.T_base_obj[:3, 3] - start[o.spec.name]) < 0.003
+                assert o.upright
+
+
 # --------------------------------------------------------------------------- the grasp check
 
 

@@ -3,6 +3,7 @@ formula, the candidates around a bottle, the refusal, and joint-space paths."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -16,6 +17,7 @@ from armvision.geometry import make_T
 from armvision.robot.kinematics import VX300S, fk
 from armvision.robot.vx300s import FINGER_PAD_INSET
 from armvision.runtime.planning_scene import (
+    CONTAINER_RADIUS_MARGIN_M,
     SIGMA_FACTOR,
     TOP_MARGIN_M,
     Body,
@@ -54,9 +56,12 @@ def test_cylinder_distance_is_the_hand_worked_one() -> None:
 def test_track_bodies_carry_their_uncertainty_and_cells_outside_them() -> None:
     sigma = 0.004
     cup = _track(5, "cup", [0.3, 0.1, 0.05], 0.035, 0.1, sigma)
-    scene = PlanningScene.build([cup], None)
-    (body,) = scene.bodies
-    assert body.radius == pytest.approx(0.035 + SIGMA_FACTOR * sigma)
+    can = _track(6, "other", [0.5, 0.1, 0.06], 0.033, 0.12, sigma)
+    scene = PlanningScene.build([cup, can], None)
+    body, other = scene.bodies
+    # A container's fitted radius runs short (its clear wall returns no depth): it grows.
+    assert body.radius == pytest.approx(0.035 + CONTAINER_RADIUS_MARGIN_M + SIGMA_FACTOR * sigma)
+    assert other.radius == pytest.approx(0.033 + SIGMA_FACTOR * sigma)
     assert body.top == pytest.approx(0.1 + TOP_MARGIN_M + SIGMA_FACTOR * sigma)
     assert body.bottom == 0.0 and body.describe() == "the cup (track 5) at (0.300, 0.100) m"
 
@@ -111,9 +116,11 @@ def test_a_cup_in_front_is_passed_above_or_around_and_every_step_is_clear() -> N
     centres, radii = arm_spheres(Q, opened)
     least, _ = clearances(centres, radii, [cup], None)
     assert least.min() >= cfg.clearance
-    # The grasp puts the bottle's axis between the fingertips at the planned height.
+    # The grasp puts the bottle's axis between the fingertips at the planned height (or, for
+    # a shallow grasp, ``ahead`` of the point between them along the heading).
     T_grasp = fk(best.grasp)
-    assert T_grasp[:3, 3] == pytest.approx([0.4, 0.0, best.grasp_z], abs=1e-4)
+    u = np.array([math.cos(best.yaw), math.sin(best.yaw), 0.0])
+    assert T_grasp[:3, 3] + best.ahead * u == pytest.approx([0.4, 0.0, best.grasp_z], abs=1e-4)
     assert best.grasp_z >= 0.0 + cfg.grasp_height_fraction * 0.2 - 1e-9
     # The pads at the grasp height pass above the cup, or the approach comes from a side.
     pads_bottom = best.grasp_z - 0.012
@@ -134,6 +141,46 @@ def test_a_surrounded_bottle_is_refused_with_what_blocks_it() -> None:
     assert (
         sum(n for _, n in refusal.blocked) + refusal.unreachable == GrabConfig().approach_candidates
     )
+
+
+def test_a_bottle_in_a_tight_cluster_is_taken_from_above_where_no_side_is_free() -> None:
+    # Two bottles 7.5 cm away at +-60 degrees (1.5 cm gaps) and a can in front: no approach
+    # from the side leaves the fingers room, but above the can and between the two bottles'
+    # caps the open fingers fit.
+    target = _track(1, "bottle", [0.42, 0.0, 0.1], 0.03, 0.2)
+    around = [
+        _track(2 + k, "bottle", [0.42 + 0.075 * math.cos(a), 0.075 * math.sin(a), 0.1], 0.03, 0.2)
+        for k, a in enumerate(np.radians([60.0, -60.0]))
+    ]
+    can = _track(5, "other", [0.345, 0.0, 0.06], 0.033, 0.12)
+    scene = PlanningScene.build([target, *around, can], None)
+    cfg = GrabConfig()
+    side_only = plan_grasps(target, scene, cfg, VX300S, allow_top=False)
+    assert isinstance(side_only, GraspRefusal)
+    assert "from above" not in side_only.reason
+    found = plan_grasps(target, scene, cfg, VX300S)
+    assert not isinstance(found, GraspRefusal)
+    assert all(c.from_above for c in found)
+    best = found[0]
+    assert best.clearance >= cfg.clearance
+    # Pointing down over the bottle, the point between the fingertips below its top.
+    T = fk(best.grasp, VX300S)
+    assert T[:3, 0] == pytest.approx([0.0, 0.0, -1.0], abs=1e-6)
+    assert T[:2, 3] == pytest.approx([0.42, 0.0], abs=1e-6)
+    assert target.p_base[2] + 0.05 < T[2, 3] < target.p_base[2] + 0.1
+    # Lifted straight up.
+    T_lift = fk(best.lift[-1], VX300S)
+    assert T_lift[:3, 3] == pytest.approx(T[:3, 3] + [0.0, 0.0, cfg.lift], abs=1e-6)
+    # A taller object between the caps blocks the fingers from above too; the refusal says so.
+    pole = _track(6, "other", [0.42, 0.075, 0.15], 0.02, 0.3)
+    refusal = plan_grasps(
+        target, PlanningScene.build([target, *around, can, pole], None), cfg, VX300S
+    )
+    assert isinstance(refusal, GraspRefusal)
+    assert "; from above: blocked by" in refusal.reason
+    # grab.top_grasp = false keeps to the side.
+    no_top = dataclasses.replace(cfg, top_grasp=False)
+    assert isinstance(plan_grasps(target, scene, no_top, VX300S), GraspRefusal)
 
 
 def test_closing_fingers_are_checked_over_their_whole_travel() -> None:

@@ -122,6 +122,7 @@ def run_trial(
             "joint_paths_planned": result.get("joint_paths_planned"),
             "approach_deg": result.get("approach_deg"),
             "ahead_m": result.get("ahead"),
+            "from_above": result.get("from_above"),
             "collateral": collateral,
         }
 

@@ -462,7 +462,7 @@ class _Analyze:
         held; the grasp's reason if it failed, else None."""
         ctx, carrier, track = self.ctx, self.carrier, self.track
         assert track is not None
-        grabbed: GrabResult = grab(ctx, track_id=track.id)
+        grabbed: GrabResult = grab(ctx, track_id=track.id, allow_top=False)  # carried level
         if not grabbed.ok:
             return grabbed.reason
         self.picked = True

@@ -87,7 +87,9 @@ def _yaw(T_base_x: Array) -> float:
 class Held:
     """The picked bottle: its geometry, where it came from and how it is carried, metres;
     ``ahead``: its axis stands this far ahead of the point between the fingertips, along the
-    gripper's heading (a shallow grasp; 0 for a full-depth one)."""
+    gripper's heading (a shallow grasp; 0 for a full-depth one); ``from_above``: held by the
+    cap, the gripper pointing down (:class:`Carrier`'s level moves are not for such a bottle;
+    the place task's are)."""
 
     radius: float
     height: float
@@ -96,6 +98,7 @@ class Held:
     carry_z: float
     home_xy: Array
     ahead: float = 0.0
+    from_above: bool = False
 
     @property
     def grasp_z(self) -> float:
@@ -109,16 +112,16 @@ class Held:
         obstacle_tops: Sequence[float],
         gcfg: GrabConfig,
     ) -> Held:
-        """The radius from the closed fingers (the track's if implausible), height, table and
-        grasp height from the grasp, the carry height above every other object's top
-        (``obstacle_tops``)."""
+        """The radius from the closed fingers (the track's if implausible, or held from above:
+        the fingers closed on the cap), height, table and grasp height from the grasp, the
+        carry height above every other object's top (``obstacle_tops``)."""
         assert grabbed.target is not None and grabbed.grasp_z is not None
         height = float(grabbed.height if grabbed.height is not None else 2.0 * grabbed.target[2])
         table_z = grabbed.target[2] - 0.5 * height
         grasp_offset = grabbed.grasp_z - table_z
         radius = finger - FINGER_PAD_INSET  # closed on a bottle, finger = radius + inset
-        if not RADIUS_RANGE_M[0] <= radius <= RADIUS_RANGE_M[1]:
-            radius = float(track.radius or 0.03)
+        if grabbed.from_above or not RADIUS_RANGE_M[0] <= radius <= RADIUS_RANGE_M[1]:
+            radius = float(track.radius or 0.03)  # from above, the fingers measured the cap
         tallest = max([table_z, *obstacle_tops])
         carry_z = max(tallest + CARRY_CLEARANCE_M + grasp_offset, grabbed.grasp_z + gcfg.lift)
         return Held(
@@ -129,6 +132,7 @@ class Held:
             carry_z,
             np.array(grabbed.target[:2], float),
             grabbed.ahead,
+            grabbed.from_above,
         )
 
     def grip_xy(self, xy: ArrayLike, yaw: float) -> Array:

@@ -45,6 +45,13 @@ re-read before the waypoint and before the approach, and if the bottle moved by 
 :data:`MOVED_M` the plan is made again; the whole task fails after ``timeout_s``. A failed
 grasp opens the gripper and backs off to the waypoint, so nothing is left pinched. Stop
 (TaskStopped) halts the arm where it is, gripper unchanged.
+
+**From above.** Where no approach from the side is free (bottles 1-2 cm apart), the
+collision-aware planner tries grasps from above (``grab.top_grasp``): the gripper pointing
+down comes straight down over the bottle and closes on its cap and neck, then lifts; checked
+the same way. The gap check then needs :data:`TOP_GRASP_MARGIN_M` (a cap is narrower than a
+body). ``allow_top=False`` keeps to grasps from the side (the analyze task carries the bottle
+level).
 """
 
 from __future__ import annotations
@@ -69,18 +76,21 @@ from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, pace
 
 #: The finger gap must exceed the empty-closed gap by this much for a grasp to count, metres.
 GRASP_MARGIN_M = 0.004
+#: ... by this much when the grasp is from above: it closes on a cap, 11-16 mm in radius.
+TOP_GRASP_MARGIN_M = 0.002
 #: Ends the reason of a grab that refused before anything moved (the arm, the gripper).
 NOTHING_MOVED = "(nothing moved)"
 
 
-def holding(arm: Arm) -> bool:
+def holding(arm: Arm, margin: float = GRASP_MARGIN_M) -> bool:
     """Whether the closed gripper holds something: the gripper's own confirmation where it
     senses one (a Dynamixel gripper: current and finger gap together), else the finger gap
-    above the empty-closed one by :data:`GRASP_MARGIN_M`."""
+    above the empty-closed one by ``margin`` (:data:`GRASP_MARGIN_M`; for a grasp from
+    above, :data:`TOP_GRASP_MARGIN_M`)."""
     confirmed = arm.gripper.grasp_confirmed()
     if confirmed is not None:
         return confirmed
-    return arm.gripper.get_finger_position() >= arm.model.finger_limits[0] + GRASP_MARGIN_M
+    return arm.gripper.get_finger_position() >= arm.model.finger_limits[0] + margin
 
 
 #: A bottle that moved more than this between two reads of its track is re-planned for, metres.
@@ -106,7 +116,9 @@ class GrabResult:
     final approach (the paper's: the bottle's bearing); ``joint_paths_planned`` moves for which
     no straight joint line was free and RRT-Connect found the path; ``ahead`` how far ahead of
     the point between the fingertips (along the gripper's heading) the bottle's axis stands,
-    m: 0 but for a shallow grasp (:data:`~armvision.tasks.grasp_plan.AHEADS_M`).
+    m: 0 but for a shallow grasp (:data:`~armvision.tasks.grasp_plan.AHEADS_M`);
+    ``from_above`` whether the bottle was grasped from above, by the cap (``grasp_z`` is
+    then, as from the side, the height of the point between the fingertips).
     """
 
     ok: bool
@@ -123,6 +135,7 @@ class GrabResult:
     approach_deg: float | None = None
     joint_paths_planned: int = 0
     ahead: float = 0.0
+    from_above: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -140,6 +153,7 @@ class GrabResult:
             "approach_deg": None if self.approach_deg is None else round(self.approach_deg, 1),
             "joint_paths_planned": self.joint_paths_planned,
             "ahead": round(self.ahead, 4),
+            "from_above": self.from_above,
         }
 
 
@@ -209,6 +223,7 @@ class _Plan:
     waypoint: np.ndarray = field(repr=False)
     grasp: np.ndarray = field(repr=False)
     ahead: float = 0.0  # the bottle's axis ahead of the point between the fingertips, m
+    from_above: bool = False  # grasped from above, by the cap
 
 
 def plan_grasp(track: TrackState, cfg: GrabConfig) -> _Plan:
@@ -254,6 +269,7 @@ class _Grab:
             approach_deg=None if plan is None else math.degrees(plan.yaw),
             joint_paths_planned=self.joint_paths,
             ahead=0.0 if plan is None else plan.ahead,
+            from_above=plan is not None and plan.from_above,
         )
 
     def remaining(self) -> float:
@@ -426,10 +442,18 @@ class _Grab:
 class _PlannedGrab(_Grab):
     """The collision-aware grab (``grab.planner = "collision"``; the module docstring)."""
 
-    def __init__(self, ctx: TaskContext, cfg: GrabConfig, track_id: int | None) -> None:
+    def __init__(
+        self, ctx: TaskContext, cfg: GrabConfig, track_id: int | None, allow_top: bool = True
+    ) -> None:
         super().__init__(ctx, cfg, track_id)
         self.candidate: GraspCandidate | None = None
         self.paths_planned = 0
+        self.allow_top = allow_top
+
+    def margin(self) -> float:
+        """The finger gap a grasp needs to count (:func:`holding`)."""
+        top = self.candidate is not None and self.candidate.from_above
+        return TOP_GRASP_MARGIN_M if top else GRASP_MARGIN_M
 
     # ------------------------------------------------------------ planning
 
@@ -456,7 +480,7 @@ class _PlannedGrab(_Grab):
                     f"{100 * self.cfg.min_base_distance:.0f} cm: not safe to grasp"
                 )
                 continue
-            found = plan_grasps(bottle, scene, self.cfg, model)
+            found = plan_grasps(bottle, scene, self.cfg, model, self.allow_top)
             if isinstance(found, GraspRefusal):
                 refusals.append(found.reason)
                 continue
@@ -538,6 +562,7 @@ class _PlannedGrab(_Grab):
             fk(candidate.pregrasp, model),
             fk(candidate.grasp, model),
             candidate.ahead,
+            candidate.from_above,
         )
 
     def go_to(self, state: SystemState, track: TrackState, found: list[GraspCandidate]) -> None:
@@ -609,7 +634,7 @@ class _PlannedGrab(_Grab):
 
         ctx.progress(0.7, "closing the gripper")
         ctx.close_gripper()
-        if not holding(ctx.arm):
+        if not holding(ctx.arm, self.margin()):
             ctx.open_gripper()
             # Back out the way the gripper came in (checked free), then up.
             self.steps("back off", (*tuple(reversed(candidate.approach[:-1])), candidate.pregrasp))
@@ -621,7 +646,7 @@ class _PlannedGrab(_Grab):
         self.steps("lift", candidate.lift)
         self.stages.append("lifted")
         finger = self.finger()
-        if not holding(ctx.arm):
+        if not holding(ctx.arm, self.margin()):
             raise _Abort("the bottle slipped out during the lift")
         self.stages.append("checked")
         ctx.progress(1.0, "holding the bottle")
@@ -641,13 +666,15 @@ class _Abort(Exception):  # noqa: N818 - control flow inside this module
     """Ends the grab with a reason (becomes GrabResult.ok = False)."""
 
 
-def grab(ctx: TaskContext, track_id: int | None = None) -> GrabResult:
+def grab(ctx: TaskContext, track_id: int | None = None, allow_top: bool = True) -> GrabResult:
     """Grasp a bottle and lift it (see the module docstring); ``track_id`` picks the bottle.
-    ``grab.planner`` chooses the collision-aware grasp (default) or the paper's."""
+    ``grab.planner`` chooses the collision-aware grasp (default) or the paper's;
+    ``allow_top`` False keeps the collision-aware one to grasps from the side (a bottle to be
+    carried level, as the analyze task carries it)."""
     ctx.require_aim()
     cfg = ctx.config.grab
     job = (
-        _PlannedGrab(ctx, cfg, track_id)
+        _PlannedGrab(ctx, cfg, track_id, allow_top)
         if cfg.planner == "collision"
         else _Grab(ctx, cfg, track_id)
     )

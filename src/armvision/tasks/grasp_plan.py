@@ -64,6 +64,22 @@ PITCHES_DEG = (0, 15, 30)
 AHEADS_M = (0.0, 0.012, 0.02)
 #: A candidate's score loses this per metre of ``ahead`` (a full-depth grasp holds best).
 AHEAD_WEIGHT = 0.3
+#: Grasps from above (the gripper pointing down, :func:`_top_candidate`), tried only when no
+#: grasp from the side is free (bottles standing 1-2 cm apart leave the fingers no room beside
+#: them, but their caps and necks stand 4-5 cm apart): the pitch; the finger headings tried
+#: (over half a turn: the two fingers are alike); how far below the bottle's top the point
+#: between the fingertips stops (the pads, reaching 28.5 mm below it, close on the cap and
+#: neck, or a short-necked bottle's shoulder, below a nozzle or cap loop: on the bench every
+#: family, full, held so through a 15 cm carry); how far above that the descent starts (the
+#: fingertips above the top); the share of the body's radius the closed fingers are checked
+#: at (a cap is 0.47 of it on the bench); and the score a grasp from above loses against any
+#: from the side (held by the cap, a full bottle slips 1-2 cm down the pads on the bench).
+TOP_PITCH_DEG = 90
+TOP_HEADINGS = 12
+TOP_BELOW_M = 0.02
+TOP_ABOVE_M = 0.07
+TOP_NECK_SHARE = 0.45
+TOP_PENALTY = 0.05
 #: Straight steps are followed by IK every this far, m (the joint lines between are checked).
 CHECK_STEP_M = 0.02
 #: The grasp pose's IK branches tried, most natural first.
@@ -103,6 +119,11 @@ class GraspCandidate:
     @property
     def grasp(self) -> Array:
         return self.approach[-1]
+
+    @property
+    def from_above(self) -> bool:
+        """A grasp from above (by the cap)."""
+        return self.pitch_deg == TOP_PITCH_DEG
 
     @property
     def pregrasp(self) -> Array:
@@ -218,27 +239,33 @@ def _executed(qs: list[Array], length: float) -> tuple[Array, ...]:
     return tuple(qs[i] for i in idx)
 
 
-def _candidate(
-    bottle: BottleGeometry,
-    yaw: float,
-    standoff: float,
-    pitch_deg: int,
-    grasp_z: float,
-    ahead: float,
-    hover_z: float,
+@dataclass(frozen=True)
+class _Moves:
+    """A candidate's checked motion: the hover configuration, each step's executed moves and
+    the least clearance over all of them."""
+
+    hover: Array
+    descend: tuple[Array, ...]
+    approach: tuple[Array, ...]
+    lift: tuple[Array, ...]
+    clearance: float
+
+
+def _checked_moves(
+    R: Array,
+    p_grasp: Array,
+    p_pre: Array,
+    p_hover: Array,
+    closed: float,
     check: Checker,
     cfg: GrabConfig,
     model: ArmModel,
-) -> GraspCandidate:
-    """One candidate, checked (see the module docstring); _Blocked with what blocks it."""
-    R = rpy_to_R(0.0, math.radians(pitch_deg), yaw)
-    u = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-    p_grasp = np.array([bottle.xy[0], bottle.xy[1], grasp_z]) - ahead * u
-    p_pre = p_grasp - standoff * u
-    p_hover = np.array([p_pre[0], p_pre[1], max(hover_z, p_pre[2])])
+) -> _Moves:
+    """The straight moves hover -> pre-grasp -> grasp, the fingers' closing and the lift
+    (``grab.lift`` straight up), all at orientation ``R``, checked against the scene (the
+    module docstring); _Blocked with what blocks them."""
     p_lift = p_grasp + np.array([0.0, 0.0, cfg.lift])
     opened = model.finger_limits[1]
-    closed = max(bottle.radius + FINGER_PAD_INSET, model.finger_limits[0])
     sweep = [opened, 0.5 * (opened + closed), closed]
     # From each IK branch of the grasp pose (the :data:`MAX_BRANCHES` most natural), the
     # straight lines back out to the pre-grasp and hover points and up for the lift: the first
@@ -262,8 +289,8 @@ def _candidate(
         raise _Blocked("out of reach")
     descend, approach = up[::-1], back[::-1]
     q_hover = descend[0]
-    run_descend = _executed(descend, float(p_hover[2] - p_pre[2]))
-    run_approach = _executed(approach, standoff)
+    run_descend = _executed(descend, float(np.linalg.norm(p_hover - p_pre)))
+    run_approach = _executed(approach, float(np.linalg.norm(p_pre - p_grasp)))
     run_lift = _executed(lift, cfg.lift)
 
     def lines(start: Array, run: tuple[Array, ...], dense: list[Array]) -> Array:
@@ -285,11 +312,35 @@ def _candidate(
         if c < cfg.clearance:
             raise _Blocked(what)
         least = min(least, c)
+    return _Moves(q_hover, run_descend, run_approach, run_lift, least)
+
+
+def _candidate(
+    bottle: BottleGeometry,
+    yaw: float,
+    standoff: float,
+    pitch_deg: int,
+    grasp_z: float,
+    ahead: float,
+    hover_z: float,
+    check: Checker,
+    cfg: GrabConfig,
+    model: ArmModel,
+) -> GraspCandidate:
+    """One candidate from the side, checked (see the module docstring); _Blocked with what
+    blocks it."""
+    R = rpy_to_R(0.0, math.radians(pitch_deg), yaw)
+    u = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    p_grasp = np.array([bottle.xy[0], bottle.xy[1], grasp_z]) - ahead * u
+    p_pre = p_grasp - standoff * u
+    p_hover = np.array([p_pre[0], p_pre[1], max(hover_z, p_pre[2])])
+    closed = max(bottle.radius + FINGER_PAD_INSET, model.finger_limits[0])
+    moves = _checked_moves(R, p_grasp, p_pre, p_hover, closed, check, cfg, model)
     bearing = math.atan2(bottle.xy[1], bottle.xy[0])
     facing = math.cos((yaw - bearing + math.pi) % (2 * math.pi) - math.pi)
     raise_m = grasp_z - bottle.grasp_z
     score = (
-        min(least, ENOUGH_CLEARANCE_M)
+        min(moves.clearance, ENOUGH_CLEARANCE_M)
         + 0.01 * facing
         - 0.0002 * pitch_deg
         - 0.02 * raise_m
@@ -301,11 +352,45 @@ def _candidate(
         pitch_deg,
         grasp_z,
         ahead,
-        q_hover,
-        run_descend,
-        run_approach,
-        run_lift,
-        least,
+        moves.hover,
+        moves.descend,
+        moves.approach,
+        moves.lift,
+        moves.clearance,
+        score,
+    )
+
+
+def _top_candidate(
+    bottle: BottleGeometry,
+    yaw: float,
+    hover_z: float,
+    check: Checker,
+    cfg: GrabConfig,
+    model: ArmModel,
+) -> GraspCandidate:
+    """One candidate from above, the fingers opening across ``yaw + 90`` degrees, checked;
+    _Blocked with what blocks it. The gripper points straight down; the point between the
+    fingertips stops :data:`TOP_BELOW_M` under the bottle's top, so the pads close on its cap
+    and neck; it comes down from :data:`TOP_ABOVE_M` higher (the fingertips above the top)."""
+    R = rpy_to_R(0.0, math.radians(TOP_PITCH_DEG), yaw)
+    p_grasp = np.array([bottle.xy[0], bottle.xy[1], bottle.top - TOP_BELOW_M])
+    p_pre = p_grasp + np.array([0.0, 0.0, TOP_ABOVE_M])
+    p_hover = np.array([p_pre[0], p_pre[1], max(hover_z + TOP_ABOVE_M, p_pre[2])])
+    closed = max(TOP_NECK_SHARE * bottle.radius + FINGER_PAD_INSET, model.finger_limits[0])
+    moves = _checked_moves(R, p_grasp, p_pre, p_hover, closed, check, cfg, model)
+    score = min(moves.clearance, ENOUGH_CLEARANCE_M) - TOP_PENALTY
+    return GraspCandidate(
+        yaw,
+        TOP_ABOVE_M,
+        TOP_PITCH_DEG,
+        float(p_grasp[2]),
+        0.0,
+        moves.hover,
+        moves.descend,
+        moves.approach,
+        moves.lift,
+        moves.clearance,
         score,
     )
 
@@ -321,9 +406,15 @@ def hover_height(bottle: BottleGeometry, scene: PlanningScene, p_xy: Array) -> f
 
 
 def plan_grasps(
-    track: TrackState, scene: PlanningScene, cfg: GrabConfig, model: ArmModel
+    track: TrackState,
+    scene: PlanningScene,
+    cfg: GrabConfig,
+    model: ArmModel,
+    allow_top: bool = True,
 ) -> list[GraspCandidate] | GraspRefusal:
-    """Every free candidate for ``track``, best first; or why there is none."""
+    """Every free candidate for ``track``, best first; or why there is none. Grasps from
+    above are tried when none from the side is free, if ``allow_top`` and
+    ``grab.top_grasp``."""
     bottle = BottleGeometry.of(track, cfg)
     check = Checker(scene, track.id, model)
     free: list[GraspCandidate] = []
@@ -362,11 +453,37 @@ def plan_grasps(
             blockers[Counter(hits).most_common(1)[0][0]] += 1
         else:
             unreachable += 1
+    if not free and allow_top and cfg.top_grasp:
+        free, from_above = _top_candidates(bottle, scene, check, cfg, model)
+    else:
+        from_above = ""
     if free:
         return sorted(free, key=lambda c: -c.score)
-    return GraspRefusal(
-        refusal_reason(bottle, blockers, unreachable, n), tuple(blockers.most_common()), unreachable
-    )
+    reason = refusal_reason(bottle, blockers, unreachable, n) + from_above
+    return GraspRefusal(reason, tuple(blockers.most_common()), unreachable)
+
+
+def _top_candidates(
+    bottle: BottleGeometry, scene: PlanningScene, check: Checker, cfg: GrabConfig, model: ArmModel
+) -> tuple[list[GraspCandidate], str]:
+    """The free grasps from above over :data:`TOP_HEADINGS` finger headings, and, if there
+    is none, what blocks them for the refusal ("; from above: blocked by ...")."""
+    hover_z = hover_height(bottle, scene, bottle.xy)
+    bearing = math.atan2(bottle.xy[1], bottle.xy[0])
+    free: list[GraspCandidate] = []
+    reasons: Counter[str] = Counter()
+    for k in range(TOP_HEADINGS):
+        yaw = bearing + math.pi * k / TOP_HEADINGS
+        try:
+            free.append(_top_candidate(bottle, yaw, hover_z, check, cfg, model))
+        except _Blocked as exc:
+            reasons[exc.what] += 1
+    if free or not reasons:
+        return free, ""
+    what, count = reasons.most_common(1)[0]
+    if what == "out of reach":
+        return [], "; from above: out of the arm's reach"
+    return [], f"; from above: blocked by {what} in {count} of {TOP_HEADINGS} finger headings"
 
 
 def refusal_reason(bottle: BottleGeometry, blockers: Counter[str], unreachable: int, n: int) -> str:

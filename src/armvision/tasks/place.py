@@ -55,16 +55,24 @@ from armvision.tasks.carry import (
     CARRY_SPEED_M_S,
     EMPTY_MAX_PITCH_DEG,
     RELEASE_HEIGHT_M,
+    STAND_BACK_M,
     Abort,
     Carrier,
     Held,
 )
-from armvision.tasks.grab import GRASP_MARGIN_M, HOVER_CLEARANCE_M, GrabResult
+from armvision.tasks.grab import (
+    GRASP_MARGIN_M,
+    HOVER_CLEARANCE_M,
+    TOP_GRASP_MARGIN_M,
+    GrabResult,
+)
 from armvision.tasks.grasp_plan import (
     CHECK_STEP_M as CHECK_STEP,
 )
 from armvision.tasks.grasp_plan import (
     MAX_STEP_RAD,
+    TOP_ABOVE_M,
+    TOP_PITCH_DEG,
     Checker,
     _Blocked,
     _executed,
@@ -161,6 +169,12 @@ def _reach_poses(xy: Array, held: Held) -> list[tuple[Array, float, int]]:
     back = xy * max(d - held.radius - BACKOFF_MARGIN_M, 0.0) / max(d, 1e-9)
     top = held.table_z + held.height + HOVER_CLEARANCE_M
     grip = held.grip_xy(xy, yaw)
+    if held.from_above:  # pointing down; released, straight up
+        return [
+            (np.array([grip[0], grip[1], held.grasp_z]), yaw, TOP_PITCH_DEG),
+            (np.array([grip[0], grip[1], held.carry_z]), yaw, TOP_PITCH_DEG),
+            (np.array([grip[0], grip[1], held.grasp_z + TOP_ABOVE_M]), yaw, TOP_PITCH_DEG),
+        ]
     return [
         (np.array([grip[0], grip[1], held.grasp_z]), yaw, 0),
         (np.array([grip[0], grip[1], held.carry_z]), yaw, 0),
@@ -173,10 +187,11 @@ def reachable(xy: Array, held: Held, model: ArmModel) -> bool:
     """Whether the arm reaches every pose of the set-down at ``xy`` (level where it holds
     the bottle, pitched down up to the carrying rule's limit where it is empty)."""
     for p, yaw, max_pitch in _reach_poses(xy, held):
+        pitches = [TOP_PITCH_DEG] if held.from_above else range(0, max_pitch + 1, 5)
         if not any(
             unflipped_ik(make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p), model.home, model)
             is not None
-            for pitch in range(0, max_pitch + 1, 5)
+            for pitch in pitches
         ):
             return False
     return True
@@ -295,6 +310,12 @@ def _turning_line(
     return out
 
 
+def _heading(R: Array) -> float:
+    """The yaw of a gripper orientation's x axis (its approach direction) in the base's xy
+    plane."""
+    return math.atan2(R[1, 0], R[0, 0])
+
+
 def _turns(yaw_now: float, spot: Array) -> list[float]:
     """Turns to try while carrying: facing the spot from the base first, none, then every
     :data:`TURN_STEP_DEG` by nearness to the first."""
@@ -318,11 +339,14 @@ def plan_set_down(
     or why not: straight up to the carry height, straight across while turning about the
     vertical (the bottle stays upright; the collision-aware grasp may have come from any side,
     so the turns of :func:`_turns` are tried until one keeps the arm on one IK branch),
-    straight down, open, back along the gripper's own axis, up. Every configuration is
-    checked against ``scene`` (the held bottle left out)."""
+    straight down, open, back along the gripper's own axis (held from above: none), up.
+    With the spot under the bottle already (putting it back), straight down. Every
+    configuration is checked against ``scene`` (the held bottle left out)."""
     R0 = T_now[:3, :3]
     p0 = T_now[:3, 3]
     carry_z = max(held.carry_z, float(p0[2]))
+    if float(np.linalg.norm(p0[:2] - held.grip_xy(spot, _heading(R0)))) < STAND_BACK_M:
+        carry_z = float(p0[2])  # the spot is under the bottle (put back): straight down
     release_z = held.grasp_z + RELEASE_HEIGHT_M
     p_up = np.array([p0[0], p0[1], carry_z])
     top = held.table_z + held.height + HOVER_CLEARANCE_M
@@ -330,9 +354,12 @@ def plan_set_down(
     check = Checker(scene, None, model)
     opened = model.finger_limits[1]
     why = f"the arm cannot carry the bottle, held as it is, to {where}"
+    # Held from above, the gripper's heading does not matter: no turn first.
+    turns = _turns(0.0, np.array([1.0, 0.0])) if held.from_above else _turns(_heading(R0), spot)
+    turns = list(dict.fromkeys(turns))
     options = [
         (turn, during_lift)
-        for turn in _turns(math.atan2(R0[1, 0], R0[0, 0]), spot)
+        for turn in turns
         for during_lift in (False, True)
         if not (during_lift and turn == 0.0)
     ]
@@ -352,8 +379,12 @@ def plan_set_down(
         grip = held.grip_xy(spot, math.atan2(u[1], u[0]))
         p_above = np.array([grip[0], grip[1], carry_z])
         p_release = np.array([grip[0], grip[1], release_z])
-        p_back = p_release - (held.radius + BACKOFF_MARGIN_M + FINGERTIP_AHEAD_M) * u
-        p_rise = np.array([p_back[0], p_back[1], max(top, release_z)])
+        if held.from_above:  # open, then straight up until the fingertips clear the cap
+            p_back = p_release
+            p_rise = p_release + np.array([0.0, 0.0, TOP_ABOVE_M])
+        else:
+            p_back = p_release - (held.radius + BACKOFF_MARGIN_M + FINGERTIP_AHEAD_M) * u
+            p_rise = np.array([p_back[0], p_back[1], max(top, release_z)])
         lift_turn = turn if during_lift else 0.0
         try:
             up = _turning_line(q_now, p0, p_up, R0, lift_turn, model)
@@ -583,21 +614,23 @@ class Placer:
         )
 
 
-def holding(ctx: TaskContext) -> bool:
-    """Whether the fingers close on something: between empty-closed (plus the grasp margin)
-    and open (minus it)."""
+def holding(ctx: TaskContext, from_above: bool = False) -> bool:
+    """Whether the fingers close on something: between empty-closed (plus the grasp margin,
+    that of a grasp from above if ``from_above``) and open (minus the margin)."""
     lo, hi = ctx.arm.model.finger_limits
     finger = float(ctx.arm.gripper.get_finger_position())
-    return lo + GRASP_MARGIN_M < finger < hi - GRASP_MARGIN_M
+    margin = TOP_GRASP_MARGIN_M if from_above else GRASP_MARGIN_M
+    return lo + margin < finger < hi - GRASP_MARGIN_M
 
 
 def held_from_last_grab(ctx: TaskContext) -> tuple[Held, int | None]:
     """The bottle the newest successful grab task holds (module docstring, step 1);
     PlaceError if nothing is held."""
-    if not holding(ctx):
-        raise PlaceError("nothing is held: grab a bottle first (the gripper is open or empty)")
     status = ctx.system.last_status("grab")
     result = None if status is None else status.result
+    from_above = bool(result and result.get("from_above"))
+    if not holding(ctx, from_above):
+        raise PlaceError("nothing is held: grab a bottle first (the gripper is open or empty)")
     if status is None or status.phase != "succeeded" or not result or not result.get("ok"):
         raise PlaceError(
             "nothing is held that a grab took: grab a bottle first (the fingers hold "
@@ -611,6 +644,8 @@ def held_from_last_grab(ctx: TaskContext) -> tuple[Held, int | None]:
         height=result.get("height"),
         grasp_z=result.get("grasp_z"),
         finger=result.get("finger"),
+        ahead=float(result.get("ahead") or 0.0),
+        from_above=from_above,
     )
     state = ctx.state()
     track_id = grabbed.track_id

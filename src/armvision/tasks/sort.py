@@ -17,8 +17,9 @@ One bottle after the other, until none is left to look at:
    the reason.
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
-4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware; a refusal moves nothing
-   and the bottle is skipped as unreachable, with the planner's reason, for now: once the
+4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side or from
+   above; a refusal leaves the bottle untouched and it is skipped as unreachable, with the
+   planner's reason, for now: once the
    other bottles have been looked at, each refused one is tried again if some bottle has
    been set down since its refusal, as a neighbour taken away may free an approach; at most
    :data:`MAX_TRIES` grasps in all). A bottle whose pick for the measurement was refused
@@ -49,14 +50,16 @@ from armvision.config import Config
 from armvision.fusion.tracker import TrackState
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.tasks.analyze import AnalyzeResult, analyze
-from armvision.tasks.carry import Held
+from armvision.tasks.carry import CARRY_CLEARANCE_M, Held
 from armvision.tasks.colour import COLOUR_PALETTE
 from armvision.tasks.grab import NOTHING_MOVED, grab
+from armvision.tasks.grasp_plan import TOP_BELOW_M
 from armvision.tasks.place import (
     PlaceError,
     Placer,
     held_obstacles,
     holding,
+    reachable,
     zone_rect,
     zone_spot,
 )
@@ -212,6 +215,12 @@ class SortResult:
         }
 
 
+def _in_fingers(ctx: TaskContext) -> bool:
+    """Whether anything is in the fingers (with the narrower margin of a grasp from above:
+    a cap counts)."""
+    return holding(ctx, from_above=True)
+
+
 def in_zone(config: Config, xy: Array) -> str | None:
     """The zone whose rectangle holds ``xy``, or None."""
     for name, (x0, y0, x1, y1) in config.place.zones.items():
@@ -274,7 +283,7 @@ class _Sort:
             report = BottleReport(track.id, (float(track.p_base[0]), float(track.p_base[1])))
             self.reports.append(report)
             self.handle(track, report)
-            if report.action == "failed" and holding(ctx):
+            if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return self.result()
         self.retry_waiting()
@@ -292,7 +301,7 @@ class _Sort:
         report.picked = measured.picked
         if not measured.ok:
             report.reason = f"not measured: {measured.reason}"
-            if measured.picked and holding(ctx):
+            if measured.picked and _in_fingers(ctx):
                 report.action = "failed"  # the analysis could not put it back
             elif NOTHING_MOVED in measured.reason:
                 self.wait(report, None, "")  # its pick was refused: try again later
@@ -321,12 +330,15 @@ class _Sort:
             return
         self.progress(0.5, f"bottle {len(self.reports)}: {why}, taking it to {zone!r}")
         before = ctx.state().planning_scene  # its neighbours, before the arm hides them
-        grabbed = grab(ctx, track_id=now.id)
+        # From above only if the arm can also carry it so to the zone: held by the cap, it
+        # hangs a body's height lower, and must clear its neighbours' tops.
+        top_ok = self.spot_for(now, zone, from_above=True) is not None
+        grabbed = grab(ctx, track_id=now.id, allow_top=top_ok)
         if not grabbed.ok:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
-            if holding(ctx):
+            if _in_fingers(ctx):
                 report.action = "failed"  # something stays in the fingers
-            elif NOTHING_MOVED in grabbed.reason:
+            elif "approach" not in grabbed.stages:  # refused before it reached the bottle
                 self.wait(report, zone, why)
             return
         state = ctx.state()
@@ -379,7 +391,7 @@ class _Sort:
                 self.handle(track, report)
             else:
                 self.take(track, report, waiting.zone, waiting.why)
-            if report.action == "failed" and holding(ctx):
+            if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return
 
@@ -411,8 +423,10 @@ class _Sort:
         self.ctx.wait_until(lambda: find() is not None, self.ctx.config.grab.track_wait_s)
         return find()
 
-    def spot_for(self, track: TrackState, zone: str) -> Array | None:
-        """A free spot in ``zone`` for a bottle of ``track``'s size, before it is grasped."""
+    def spot_for(self, track: TrackState, zone: str, from_above: bool = False) -> Array | None:
+        """A free spot in ``zone`` for a bottle of ``track``'s size, before it is grasped (from
+        above if ``from_above``: then the arm must also reach the carry height above where it
+        stands, pointing down)."""
         ctx = self.ctx
         cfg, gcfg = ctx.config.place, ctx.config.grab
         height = float(track.height or 0.2)
@@ -420,9 +434,14 @@ class _Sort:
         table_z = float(track.p_base[2]) - 0.5 * height
         state = ctx.state()
         tops = [b.top for b in state.planning_scene.obstacles(track.id)]
-        offset = gcfg.grasp_height_fraction * height
-        carry_z = max(max([table_z, *tops]) + 0.04 + offset, table_z + offset + gcfg.lift)
-        held = Held(radius, height, table_z, offset, carry_z, np.array(track.p_base[:2]))
+        offset = height - TOP_BELOW_M if from_above else gcfg.grasp_height_fraction * height
+        carry_z = max(
+            max([table_z, *tops]) + CARRY_CLEARANCE_M + offset, table_z + offset + gcfg.lift
+        )
+        home = np.array(track.p_base[:2])
+        held = Held(radius, height, table_z, offset, carry_z, home, from_above=from_above)
+        if from_above and not reachable(home, held, ctx.arm.model):  # the lift where it stands
+            return None
         obstacles = held_obstacles(state.planning_scene, track.id, None, radius)
         return zone_spot(
             zone_rect(ctx.config, zone),
