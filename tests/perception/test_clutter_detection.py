@@ -181,13 +181,15 @@ def test_a_lid_under_a_raised_ring_is_closed_an_inside_is_not() -> None:
     uw, h = _cluster(wall, lid, ring)
     top = float(np.sort(h)[-5])  # the detector's top: the 5th highest point, on the ring
     assert top > 0.107  # on the ring
-    assert det._rim(uw, h, center, 0.033, top) == pytest.approx(0.10, abs=0.005)  # lid noise
-    assert not det._shows_inside(uw, h, center, 0.033, top)
+    rim = det._rim(uw, h, center, 0.033, top)
+    assert rim == pytest.approx(0.10, abs=0.005)  # lid noise
+    assert not det._shows_inside(uw, h, center, 0.033, rim)
     # A mug: the far half is its inner wall, from the rim down to the bottom.
     inner = _ring(0.031, 0.02, 0.10, 300, front_only=False)
     inner = inner[inner[:, 1] > 0.6]  # the far inner wall, seen over the near rim
     uw, h = _cluster(wall, inner)
-    assert det._shows_inside(uw, h, center, 0.033, float(np.sort(h)[-5]))
+    top = float(np.sort(h)[-5])
+    assert det._shows_inside(uw, h, center, 0.033, det._rim(uw, h, center, 0.033, top))
 
 
 def test_a_box_face_with_no_depth_is_not_clear_plastic_a_sliver_may_be() -> None:

@@ -495,8 +495,9 @@ class GeometricDetector:
             planar = wide and _line_ss(side) < len(side) * self.flat_face_rms**2
         else:
             center, radius, res, wall = circle
-            label = self._classify(uw, h, center, radius, top, res, wall)
-            if label == "cup" and not self._shows_inside(uw, h, center, radius, top):
+            rim = self._rim(uw, h, center, radius, top)
+            label = self._classify(uw, h, center, radius, top, res, wall, rim=rim)
+            if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
                 elevation = math.atan2(offset - top, float(np.linalg.norm(center)))
                 far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
                 if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
@@ -734,15 +735,20 @@ class GeometricDetector:
         top: float,
         res: Array | None = None,
         wall: NDArray[np.bool_] | None = None,
+        *,
+        rim: float | None = None,
     ) -> Label:
-        """Bottle, cup or other from the cluster's shape (see the class docstring)."""
+        """Bottle, cup or other from the cluster's shape (see the class docstring); ``rim``
+        is :meth:`_rim`'s height when the caller has it (computed here otherwise)."""
         r = np.linalg.norm(uw - center, axis=1)
         neck = False
         upper = h > 0.75 * top
         if upper.sum() >= 5:
             neck = float(np.percentile(r[upper], 90)) < self.neck_ratio * radius
         gap, capped = self._gap(r, h, radius)
-        closed = self._closed_top(r, h, radius, self._rim(uw, h, center, radius, top))
+        if rim is None:
+            rim = self._rim(uw, h, center, radius, top)
+        closed = self._closed_top(r, h, radius, rim)
         if top >= self.bottle_min_height and not neck and not gap:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
             # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
@@ -847,18 +853,19 @@ class GeometricDetector:
             return top
         return min(top, float(np.percentile(h[near], 99.0)))
 
-    def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> bool:
+    def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, rim: float) -> bool:
         """Whether the cluster shows the inside of an open vessel: at least
         ``closed_top_min_points`` points on the far half (beyond 0.2 x the radius past the
         axis, seen from the camera), at least a fifth of them more than
-        ``closed_top_tolerance`` below the rim (:meth:`_rim`): the inner far wall under the
-        rim, or the liquid (an empty cup of a cluttered scene showed 41 %). A can's or
-        box's far half shows only its top, at rim height (1 % on PoseCNN's soup can)."""
+        ``closed_top_tolerance`` below ``rim`` (:meth:`_rim`'s height, computed once per
+        cluster by the caller, which gives it to :meth:`_classify` too): the inner far wall
+        under the rim, or the liquid (an empty cup of a cluttered scene showed 41 %). A
+        can's or box's far half shows only its top, at rim height (1 % on PoseCNN's soup
+        can)."""
         to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
         far = (uw - center) @ to_cam < -0.2 * radius
         if int(far.sum()) < self.closed_top_min_points:
             return False
-        rim = self._rim(uw, h, center, radius, top)
         below = h[far] < rim - self.closed_top_tolerance
         return int(below.sum()) >= self.closed_top_min_points and float(below.mean()) >= 0.2
 
