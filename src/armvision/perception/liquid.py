@@ -78,7 +78,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, TypeVar
 
 import cv2
 import numpy as np
@@ -100,6 +100,7 @@ from armvision.perception.fitting import fit_plane
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
 Method = Literal["profile", "hough"]
+_F = TypeVar("_F", bound=np.floating)
 METHODS = ("profile", "hough")
 #: How :attr:`LiquidLevel.unknown` begins when the wall hides the liquid.
 OPAQUE = "opaque"
@@ -214,6 +215,28 @@ def _border_cut(intr: Intrinsics, box: Box, top_known: bool, margin: float = 1.0
         if reached:
             return name
     return None
+
+
+def _rgb_length(d: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Euclidean length of RGB differences (..., 3): ``np.linalg.norm(d, axis=-1)``, the same
+    sums in the same order, without its slow reduction along a 3-long axis (~8x faster on
+    the meter's strips)."""
+    sq = d * d
+    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
+
+
+def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
+    """``np.median(a, axis)`` of an array without NaN, by one partition: the same values
+    (the middle one, or the mean of the two middle ones) without ``np.median``'s overhead,
+    which dominates on the meter's small per-row medians (~2-5x faster there)."""
+    n = a.shape[axis]
+    if n == 0:
+        return np.median(a, axis=axis)  # NaN, with numpy's warning
+    k = n // 2
+    if n % 2:
+        return np.take(np.partition(a, k, axis=axis), k, axis=axis)
+    part = np.partition(a, (k - 1, k), axis=axis)
+    return (np.take(part, k - 1, axis=axis) + np.take(part, k, axis=axis)) / 2
 
 
 def _median_rgb(pixels: NDArray[np.number]) -> tuple[int, int, int]:
@@ -750,7 +773,7 @@ class LiquidLevelMeter:
         cuts = np.cumsum([0] + [len(run) for run in runs])
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
-        edges = np.linalg.norm(np.diff(strip, axis=1), axis=2)
+        edges = _rgb_length(np.diff(strip, axis=1))
         body_row = np.ones(len(s), bool)
         faint = np.zeros(len(s))  # the strongest in-band step of the counted sides
         counted = 0
@@ -760,7 +783,7 @@ class LiquidLevelMeter:
             where = 0.5 * (band_t[1:] + band_t[:-1])
             best = np.argmax(g_band, axis=1)
             inside = (where[best] > lo) & (where[best] < hi)
-            background = np.median(g_out, axis=1)
+            background = _median(g_out, axis=1)
             strength = np.where(inside, g_band[np.arange(len(s)), best] - background, 0.0)
             edged = strength > self.edge_threshold
             if edged[lowest].mean() >= 0.4:
@@ -863,10 +886,10 @@ class LiquidLevelMeter:
             np.concatenate([shift, np.zeros((len(s_body), len(t_bg)))], axis=1),
         )
         inner = both[:, :_INNER_COLUMNS]
-        bg = np.median(both[:, _INNER_COLUMNS:], axis=1)
+        bg = _median(both[:, _INNER_COLUMNS:], axis=1)
         above_base = s_body >= self.base
         s_rows = s_body[above_base]
-        profile = np.median(inner - bg[:, None, :], axis=1)[above_base]  # (N, 3)
+        profile = _median(inner - bg[:, None, :], axis=1)[above_base]  # (N, 3)
         level_c, q_c = self._colour_step(s_rows, profile)
         # Depth cue: the step between rays that meet liquid and rays that pass the bottle.
         depth_cue = self._depth_level(rays, body)
@@ -901,7 +924,7 @@ class LiquidLevelMeter:
             level_depth_m=None if depth_cue is None else depth_cue[0],
         )
 
-    def _colour_step(self, s: Array, profile: Array) -> tuple[float, float]:
+    def _colour_step(self, s: Array, profile: NDArray[np.floating]) -> tuple[float, float]:
         """Colour cue: the level where the colour-minus-background profile steps, or its ends.
 
         ``profile`` (N, 3): per row (height ``s``, bottom first) the median colour of the
@@ -1031,9 +1054,9 @@ class LiquidLevelMeter:
         # Both sides in one strip, (rows, side, column, RGB): left (-t) then right (+t).
         strip = self._strip(frame, bf, s, np.concatenate([-grid, grid]))
         strip = strip.reshape(len(s), 2, len(grid), 3)
-        g = np.linalg.norm(np.diff(strip, axis=2), axis=3)
+        g = _rgb_length(np.diff(strip, axis=2))
         g = np.maximum(g, np.maximum(np.roll(g, 1, axis=2), np.roll(g, -1, axis=2)))
-        edged = g - np.median(g, axis=2, keepdims=True) > self.edge_threshold
+        edged = g - _median(g, axis=2)[..., None] > self.edge_threshold
         share = edged.mean(axis=0)  # (side, column)
         out: list[float | None] = []
         for side_share in share:
