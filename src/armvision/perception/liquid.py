@@ -767,15 +767,19 @@ class LiquidLevelMeter:
             runs += [side * band_t, side * grid[(grid > 1.2 * wall) & (grid < 1.5 * wall)]]
             bands.append((band_t, lo, hi))
         t = np.concatenate(runs)
-        k = self._depression_tan(bf, s)[:, None]
+        # Only the rows searched, start..stop (the lowest third and the body's top within):
+        # every row's steps are its own, so the others need no strip.
+        searched = s[start:stop]
+        k = self._depression_tan(bf, searched)[:, None]
         shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
-        strip = self._strip(frame, bf, s, t, shift)
+        strip = self._strip(frame, bf, searched, t, shift)
         cuts = np.cumsum([0] + [len(run) for run in runs])
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
         edges = _rgb_length(np.diff(strip, axis=1))
-        body_row = np.ones(len(s), bool)
-        faint = np.zeros(len(s))  # the strongest in-band step of the counted sides
+        body_row = np.ones(len(searched), bool)  # rows start..stop
+        faint = np.zeros(len(searched))  # the strongest in-band step of the counted sides
+        lowest_searched = slice(0, lowest.stop - start)  # the lowest third, in those rows
         counted = 0
         for side in (0, 1):
             g_band, g_out = (edges[:, cuts[i] : cuts[i + 1] - 1] for i in (2 * side, 2 * side + 1))
@@ -784,9 +788,9 @@ class LiquidLevelMeter:
             best = np.argmax(g_band, axis=1)
             inside = (where[best] > lo) & (where[best] < hi)
             background = _median(g_out, axis=1)
-            strength = np.where(inside, g_band[np.arange(len(s)), best] - background, 0.0)
+            strength = np.where(inside, g_band[np.arange(len(searched)), best] - background, 0.0)
             edged = strength > self.edge_threshold
-            if edged[lowest].mean() >= 0.4:
+            if edged[lowest_searched].mean() >= 0.4:
                 body_row &= edged
                 faint = np.maximum(faint, strength)
                 counted += 1
@@ -800,13 +804,13 @@ class LiquidLevelMeter:
         if stop - first < w:  # the depth level already put the body's top near the top
             return float(s[min(first, len(s) - 1)]), True
         blank = (faint < 0.5 * self.edge_threshold).astype(float)
-        run = np.convolve(blank[first:stop], np.ones(w) / w, mode="valid")
+        run = np.convolve(blank[first - start :], np.ones(w) / w, mode="valid")
         gaps = np.flatnonzero(run >= 2.0 / 3.0)
         if len(gaps):
             stop = first + int(gaps[0]) + w // 2
         if stop - first < 4:
             return float(s[min(first, len(s) - 1)]), True
-        k_split, _ = _step_split(body_row[first:stop])
+        k_split, _ = _step_split(body_row[first - start : stop - start])
         return float(s[first + max(k_split - 1, 0)]), True
 
     def _profile(
@@ -853,7 +857,6 @@ class LiquidLevelMeter:
                 body, shoulder_found = self._body_top(frame, bf, s, floor, search, empty_from)
         r = bf.radius
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
-        rays = self._rays(frame, ibox, bf, r_liq)
         body = float(np.clip(body, self.base + 0.01, bf.top))
         if bf.misfit_px > self.max_misfit * (x1 - x0):
             # No upright bottle on the table found projects onto the box (the table found is
@@ -864,6 +867,7 @@ class LiquidLevelMeter:
                 unknown=f"no upright bottle on the table fits the box (off by"
                 f" {bf.misfit_px:.0f} px): is the table around its foot in view?",
             )  # fmt: skip
+        rays = self._rays(frame, ibox, bf, r_liq)
         unknown = self._why_unseen(frame, bf, body, rays, None if first is None else first[0])
         if unknown is not None:
             debug = self._debug(frame, ibox, bf, None, body, None)
