@@ -15,6 +15,7 @@ from armvision.perception.liquid import (
     _RAY_MISS,
     LiquidLevelMeter,
     _Frame3D,
+    _hypot_below,
     _median,
     _rgb_length,
     plane_basis,
@@ -58,6 +59,21 @@ def test_median_is_numpys_median_exactly(n: int, axis: int) -> None:
 def test_median_of_nothing_is_nan_as_numpys() -> None:
     with pytest.warns(RuntimeWarning):
         assert np.isnan(_median(np.zeros((3, 0)), axis=1)).all()
+
+
+def test_hypot_below_is_numpys_hypot_exactly() -> None:
+    """Hand-worked: (3, 4) is 5 long, so below 5.000001 and not below 5; on random values,
+    ones placed at the limit to a few ulp and NaN, the same as ``np.hypot(a, b) < limit``."""
+    assert _hypot_below(np.array([3.0]), np.array([4.0]), 5.000001).tolist() == [True]
+    assert _hypot_below(np.array([3.0]), np.array([4.0]), 5.0).tolist() == [False]
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(0.0, 0.03, 5000), rng.normal(0.0, 0.03, 5000)
+    limit = 0.035
+    angle = rng.uniform(0.0, 2.0 * np.pi, 500)
+    ulps = rng.integers(-4, 5, 500) * np.spacing(limit)
+    a[:500], b[:500] = (limit + ulps) * np.cos(angle), (limit + ulps) * np.sin(angle)
+    a[500] = np.nan
+    np.testing.assert_array_equal(_hypot_below(a, b, limit), np.hypot(a, b) < limit)
 
 
 def _upright_bottle() -> _Frame3D:
