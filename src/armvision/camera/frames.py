@@ -173,11 +173,13 @@ def distort(intr: Intrinsics, x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]
     - kannala_brandt4: theta = atan(r), x' = x theta (1 + k1 th^2 + ... + k4 th^8) / r
     - ftheta: x' = x atan(2 r tan(w / 2)) / (w r)
     """
-    _check_model(intr)
     xu = np.asarray(x, dtype=float)
     yu = np.asarray(y, dtype=float)
-    k1, k2, p1, p2, k3 = (float(c) for c in intr.coeffs)
     model = intr.model
+    if model == "none":  # the common case first: no coefficients to read
+        return xu, yu
+    _check_model(intr)
+    k1, k2, p1, p2, k3 = (float(c) for c in intr.coeffs)
     if model in ("brown_conrady", "inverse_brown_conrady", "modified_brown_conrady"):
         r2 = xu * xu + yu * yu
         f = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
@@ -268,8 +270,9 @@ def project_xyz(intr: Intrinsics, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> t
         xd, yd = distort(intr, np.asarray(x, dtype=float) / z, np.asarray(y, dtype=float) / z)
         u = xd * intr.fx + intr.ppx
         v = yd * intr.fy + intr.ppy
-    behind = np.broadcast_to(z <= 0.0, u.shape)
+    behind = z <= 0.0
     if behind.any():
+        behind = np.broadcast_to(behind, u.shape)
         u, v = np.where(behind, np.nan, u), np.where(behind, np.nan, v)
     return u, v
 
