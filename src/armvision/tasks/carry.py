@@ -155,6 +155,7 @@ class Carrier:
         self.held: Held | None = None
         self.T_base_ee_last: Array | None = None
         self.where = "in its place"
+        self.taken_xy: Array | None = None  # where the held bottle was last picked up
 
     # ------------------------------------------------------------ one move
 
@@ -191,22 +192,35 @@ class Carrier:
             T, q = self.pose(p, yaw, max_pitch_deg)
             self.move(what, T, q, max(SEGMENT_TIME_S, length / CARRY_SPEED_M_S))
 
-    def unreachable(self, legs: Sequence[tuple[ArrayLike, float, int]]) -> str | None:
-        """Why the straight moves ``legs`` ((goal, yaw, max pitch) each, from the last
-        commanded pose, as :meth:`straight` makes them) cannot all be made, or None: checked
-        before the first moves, so a carry the arm cannot finish does not start."""
+    def plan_legs(
+        self, legs: Sequence[tuple[ArrayLike, float, int]]
+    ) -> list[list[tuple[Array, Array, float]]] | str:
+        """The straight moves ``legs`` ((goal, yaw, max pitch) each, from the last commanded
+        pose, segmented as :meth:`straight` does): per leg its points (pose, joints, segment
+        length), each solved near the one before; or why one cannot be reached. Planned
+        before the first move, so a carry the arm cannot finish does not start, and executed
+        as planned (:meth:`run_leg`)."""
         assert self.T_base_ee_last is not None
         model = self.ctx.arm.model
         seed = motion_seed(self.ctx.arm, self.T_base_ee_last)
         p_from, yaw_from = self.T_base_ee_last[:3, 3].copy(), _yaw(self.T_base_ee_last)
+        planned: list[list[tuple[Array, Array, float]]] = []
         for p_goal, yaw_goal, max_pitch_deg in legs:
-            for p, yaw, _ in _segments(p_from, yaw_from, p_goal, yaw_goal):
+            leg = []
+            for p, yaw, length in _segments(p_from, yaw_from, p_goal, yaw_goal):
                 found = level_pose(p, yaw, seed, model, max_pitch_deg)
                 if found is None:
                     return _cannot_reach(p, yaw)
                 seed = found[1]
+                leg.append((found[0], found[1], length))
+            planned.append(leg)
             p_from, yaw_from = np.asarray(p_goal, dtype=float), yaw_goal
-        return None
+        return planned
+
+    def run_leg(self, what: str, leg: list[tuple[Array, Array, float]]) -> None:
+        """Make one planned leg's moves (:meth:`plan_legs`) at the carrying speed."""
+        for T, q, length in leg:
+            self.move(what, T, q, max(SEGMENT_TIME_S, length / CARRY_SPEED_M_S))
 
     def finger(self) -> float:
         return float(self.ctx.arm.gripper.get_finger_position())
@@ -215,15 +229,15 @@ class Carrier:
 
     def put_down(self, xy: Array, where: str) -> None:
         """Carry the held bottle at the carry height to above ``xy``, stand it there, release
-        it and :meth:`retreat`; every point of these moves is checked reachable before the
-        first (Abort, nothing moved, if one is not)."""
+        it and retreat as :meth:`retreat` does; every point of these moves is planned before
+        the first (Abort, nothing moved, if one cannot be reached)."""
         held = self.held
         assert held is not None and self.T_base_ee_last is not None
         yaw = math.atan2(xy[1], xy[0])
         p = self.T_base_ee_last[:3, 3]
         g = held.grip_xy(xy, yaw)
         back, top = self.backoff_point(xy), held.table_z + held.height + HOVER_CLEARANCE_M
-        why = self.unreachable(
+        plan = self.plan_legs(
             [
                 ([p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last), 0),
                 ([g[0], g[1], held.carry_z], yaw, 0),
@@ -232,30 +246,38 @@ class Carrier:
                 ([back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG),
             ]
         )
-        if why is not None:
-            raise Abort(why)
-        self.straight("lift for carrying", [p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last))
-        self.straight("carry", [g[0], g[1], held.carry_z], yaw)
-        self.straight("lower onto the table", [g[0], g[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
+        if isinstance(plan, str):
+            raise Abort(plan)
+        lift, carry, lower, back_off, rise = plan
+        self.run_leg("lift for carrying", lift)
+        self.run_leg("carry", carry)
+        self.run_leg("lower onto the table", lower)
         self.ctx.open_gripper()
         self.where = where
-        self.retreat(xy)
+        self.run_leg("back off", back_off)
+        self.run_leg("rise", rise)
 
     def stand_back(self) -> bool:
         """After a move that could not be made with the bottle held, the gripper still above
-        the spot the bottle was taken from (within :data:`STAND_BACK_M`): lower it straight back
-        there, release it, back off along the gripper's own heading (the way the grasp came
-        in) and rise. False, with nothing moved, when the gripper is elsewhere."""
+        the spot the bottle was last taken from (within :data:`STAND_BACK_M`; where it stood,
+        or where it was presented): lower it straight back there, release it, back off along
+        the gripper's own heading (the way the grasp came in) and rise. False, with nothing
+        moved, when the gripper is elsewhere."""
         held, T = self.held, self.T_base_ee_last
         if held is None or T is None:
             return False
         yaw = _yaw(T)
-        grip = held.grip_xy(held.home_xy, yaw)
+        grip = held.grip_xy(self.taken_xy if self.taken_xy is not None else held.home_xy, yaw)
         if float(np.linalg.norm(T[:2, 3] - grip)) > STAND_BACK_M:
             return False
         self.straight("stand it back", [grip[0], grip[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
         self.ctx.open_gripper()
-        self.where = "back in its place"
+        self.where = (
+            "back in its place"
+            if self.taken_xy is None
+            else "standing where it was presented, at "
+            f"({self.taken_xy[0]:.2f}, {self.taken_xy[1]:.2f}) m"
+        )
         back = grip - (held.radius + BACKOFF_MARGIN_M) * np.array([math.cos(yaw), math.sin(yaw)])
         self.straight("back off", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
         top = held.table_z + held.height + HOVER_CLEARANCE_M
@@ -290,6 +312,7 @@ class Carrier:
             self.retreat(xy)
             raise Abort("could not grasp the bottle again where it was presented")
         self.where = "held by the gripper"
+        self.taken_xy = np.asarray(xy, dtype=float)
 
     def backoff_point(self, xy: Array) -> Array:
         """(x, y) on the line to the base where the open fingertips clear the bottle at ``xy``."""
