@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
+from armvision.geometry import make_T
 from armvision.robot.kinematics import ik
 from armvision.robot.vx300s import FINGER_PAD_INSET
 from armvision.runtime.context import TaskContext
@@ -270,7 +271,9 @@ class Carrier:
         grip = held.grip_xy(self.taken_xy if self.taken_xy is not None else held.home_xy, yaw)
         if float(np.linalg.norm(T[:2, 3] - grip)) > STAND_BACK_M:
             return False
-        self.straight("stand it back", [grip[0], grip[1], held.grasp_z + RELEASE_HEIGHT_M], yaw)
+        # The lift reversed, in the grasp's own orientation (it may be pitched where a level
+        # gripper does not reach), then out the way the grasp came in, and up.
+        self.fixed("stand it back", [grip[0], grip[1], held.grasp_z + RELEASE_HEIGHT_M])
         self.ctx.open_gripper()
         self.where = (
             "back in its place"
@@ -279,10 +282,22 @@ class Carrier:
             f"({self.taken_xy[0]:.2f}, {self.taken_xy[1]:.2f}) m"
         )
         back = grip - (held.radius + BACKOFF_MARGIN_M) * np.array([math.cos(yaw), math.sin(yaw)])
-        self.straight("back off", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
-        top = held.table_z + held.height + HOVER_CLEARANCE_M
-        self.straight("rise", [back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG)
+        self.fixed("back off", [back[0], back[1], held.grasp_z + RELEASE_HEIGHT_M])
+        self.fixed("rise", [back[0], back[1], held.table_z + held.height + HOVER_CLEARANCE_M])
         return True
+
+    def fixed(self, what: str, p_goal: ArrayLike) -> None:
+        """From the last commanded pose straight to ``p_goal`` keeping its orientation, in
+        segments as :meth:`straight`; Abort if a point is out of reach."""
+        assert self.T_base_ee_last is not None
+        R = self.T_base_ee_last[:3, :3].copy()
+        p_from = self.T_base_ee_last[:3, 3].copy()
+        for p, _, length in _segments(p_from, 0.0, p_goal, 0.0):
+            T = make_T(R, p)
+            q, ok = ik(T, motion_seed(self.ctx.arm, self.T_base_ee_last), self.ctx.arm.model)
+            if not ok:
+                raise Abort(_cannot_reach(p, _yaw(T)))
+            self.move(what, T, q, max(SEGMENT_TIME_S, length / CARRY_SPEED_M_S))
 
     def retreat(self, xy: Array) -> None:
         """From the grasp pose at ``xy``: back off toward the base until the fingertips are
