@@ -303,3 +303,39 @@ def test_a_bottle_refused_for_its_neighbours_is_sorted_once_the_one_in_front_is_
     assert math.dist(first["start"], (inner.x, inner.y)) < 0.02
     assert first["action"] == "placed" and first["tries"] == 2
     assert second["action"] == "placed" and second["tries"] == 1
+
+
+def test_a_bottle_taken_from_above_is_set_down_upright_in_the_zone() -> None:
+    # A short bottle with cans 1.5 cm from it on three sides: taken by the cap from above,
+    # carried pointing down over the cans, set down in "full" and released straight up.
+    target = ObjectSpec("target", "bottle", 0.030, 0.16, 0.5, "juice", x=0.34, y=0.0)
+    cans = [
+        ObjectSpec(
+            f"can{k}",
+            "can",
+            0.033,
+            0.12,
+            0.0,
+            "water",
+            x=0.34 + 0.077 * math.cos(a),
+            y=0.077 * math.sin(a),
+        )
+        for k, a in enumerate(np.radians([60.0, -60.0, 180.0]))
+    ]
+    config = _config()
+    with sim_system(config, 3, scene=_scene(target, *cans)) as system:
+        system.pump(system.clock() + 1.5)
+        grabbed = system.run_task("grab", grab)
+        assert grabbed.phase == "succeeded", grabbed.error
+        assert grabbed.result["from_above"]
+        status = system.run_task("place", place, zone="full")
+        assert status.phase == "succeeded", status.error
+        system.pump(system.clock() + 2.0)
+        objects = {o.spec.name: o for o in system.world.objects()}
+        assert system.world.held_object() is None
+    bottle = objects["target"]
+    assert bottle.upright and in_zone(config, bottle.T_base_obj[:2, 3]) == "full"
+    assert math.dist(bottle.T_base_obj[:2, 3], status.result["asked"]) < 0.02
+    for can in cans:
+        assert math.dist(objects[can.name].T_base_obj[:2, 3], (can.x, can.y)) < 0.005
+        assert objects[can.name].upright
