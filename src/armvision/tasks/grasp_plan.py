@@ -22,6 +22,13 @@ approach from the base's side, a level gripper). When none is free, :class:`Gras
 says what blocks them ("every approach to bottle 3 ... is blocked by the cup (track 5) at
 ...").
 
+Where no candidate from the side is free and grasps from above are allowed
+(``grab.top_grasp``, ``allow_top``), :func:`plan_grasps` tries :data:`TOP_HEADINGS` finger
+headings with the gripper pointing down: hover above the bottle, straight down over it until
+the point between the fingertips is :data:`TOP_BELOW_M` under its top, close on the cap and
+neck, lift straight up; checked in the same way, scored :data:`TOP_PENALTY` below any side
+grasp, and their blockers added to the refusal ("; from above: blocked by ...").
+
 Units: metres, radians; positions in the base frame.
 """
 

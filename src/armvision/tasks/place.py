@@ -5,7 +5,8 @@
    system's newest successful ``grab`` task took (:meth:`System.last_status
    <armvision.runtime.system.System.last_status>`), as long as the fingers still close on
    something: between the empty-closed gap plus :data:`~armvision.tasks.grab.GRASP_MARGIN_M`
-   and the open gap; otherwise it fails with "nothing is held" and nothing moves.
+   (:data:`~armvision.tasks.grab.TOP_GRASP_MARGIN_M` for a grasp from above, by the cap) and
+   the open gap; otherwise it fails with "nothing is held" and nothing moves.
 2. **The spot.** ``(x, y)``: that spot; ``zone``: a free spot inside the named rectangle of
    ``place.zones`` (the bottle's footprint wholly inside it), the candidates of a
    :data:`ZONE_STEP_M` grid tried from the zone's corner farthest from the base, so bottles
@@ -19,8 +20,11 @@
    to the carry height (above everything on the table, :class:`~armvision.tasks.carry.Held`),
    straight across to above the spot while turning about the vertical only (the bottle stays
    upright whichever side the collision-aware grasp came from), straight down to the release
-   height, open, back out along the gripper's own axis, up; every configuration checked
-   against the planning scene as the grasp's are. Then to the grasp's safe start pose, out
+   height, open, back out along the gripper's own axis (held from above: none), up; with
+   the spot already under the bottle (putting it back), straight down; every configuration
+   checked against the planning scene as the grasp's are. A bottle held ``ahead`` of the
+   point between the fingertips (a shallow grasp) is set down with that point short of the
+   spot by as much. Then to the grasp's safe start pose, out
    of the camera's view (:meth:`Carrier.go_safe <armvision.tasks.carry.Carrier.go_safe>`).
    A spot off the table, taken or out of reach, an unknown zone, a full zone give a one-line
    reason and no motion.

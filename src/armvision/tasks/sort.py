@@ -17,12 +17,12 @@ One bottle after the other, until none is left to look at:
    the reason.
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
-4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side or from
-   above; a refusal leaves the bottle untouched and it is skipped as unreachable, with the
-   planner's reason, for now: once the
-   other bottles have been looked at, each refused one is tried again if some bottle has
-   been set down since its refusal, as a neighbour taken away may free an approach; at most
-   :data:`MAX_TRIES` grasps in all). A bottle whose pick for the measurement was refused
+4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side, or from
+   above if the arm can carry it so to the zone). A refusal leaves the bottle untouched and
+   it is skipped as unreachable, with the planner's reason, for now: once the other bottles
+   have been looked at, each refused one is tried again if some bottle has been set down
+   since its refusal (a neighbour taken away may free an approach), at most
+   :data:`MAX_TRIES` grasps in all. A bottle whose pick for the measurement was refused
    waits the same way.
 5. **Place** it on a free spot of the zone (:class:`~armvision.tasks.place.Placer`: the
    analyze task's carrying moves, then the check of where it stands). Should the zone have
@@ -231,7 +231,7 @@ def in_zone(config: Config, xy: Array) -> str | None:
 
 @dataclass
 class _Waiting:
-    """A bottle refused before anything moved: its report, the zone its measurement chose
+    """A bottle refused before the arm reached it: its report, the zone its measurement chose
     (None: its pick for the measurement was refused), why, and how many bottles had been
     set down by then."""
 
