@@ -265,6 +265,23 @@ def test_a_second_track_inside_the_excluded_one_is_the_same_object() -> None:
     assert [b.track_id for b in scene.obstacles(None)] == [1, 7, 2]
 
 
+def _cans_around(x: float, reach: float, bearings_deg: list[float]) -> list[ObjectSpec]:
+    """Cans ``reach`` m from (x, 0) at these bearings."""
+    return [
+        ObjectSpec(
+            f"can{k}",
+            "can",
+            0.033,
+            0.12,
+            0.0,
+            "water",
+            x=x + reach * math.cos(a),
+            y=reach * math.sin(a),
+        )
+        for k, a in enumerate(np.radians(bearings_deg))
+    ]
+
+
 def test_a_bottle_refused_for_its_neighbours_is_sorted_once_the_one_in_front_is_moved() -> None:
     # The inner bottle stands in a half ring of cans 12 cm away, the outer bottle 8 cm in
     # front of it on the base's side: every approach to the inner one is blocked (the cans'
@@ -273,19 +290,7 @@ def test_a_bottle_refused_for_its_neighbours_is_sorted_once_the_one_in_front_is_
     # then takes the inner one from the side the outer one left free.
     inner = ObjectSpec("inner", "bottle", 0.030, 0.20, 0.1, "juice", x=0.45, y=0.0)
     outer = ObjectSpec("outer", "bottle", 0.030, 0.20, 0.7, "juice", x=0.37, y=0.0)
-    cans = [
-        ObjectSpec(
-            f"can{k}",
-            "can",
-            0.033,
-            0.12,
-            0.0,
-            "water",
-            x=0.45 + 0.12 * math.cos(a),
-            y=0.12 * math.sin(a),
-        )
-        for k, a in enumerate(np.radians([45.0, 90.0, -45.0, -90.0]))
-    ]
+    cans = _cans_around(0.45, 0.12, [45.0, 90.0, -45.0, -90.0])
     config = _config()
     with sim_system(config, 3, scene=_scene(inner, outer, *cans)) as system:
         system.pump(system.clock() + 1.5)
@@ -309,19 +314,7 @@ def test_a_bottle_taken_from_above_is_set_down_upright_in_the_zone() -> None:
     # A short bottle with cans 1.5 cm from it on three sides: taken by the cap from above,
     # carried pointing down over the cans, set down in "full" and released straight up.
     target = ObjectSpec("target", "bottle", 0.030, 0.16, 0.5, "juice", x=0.34, y=0.0)
-    cans = [
-        ObjectSpec(
-            f"can{k}",
-            "can",
-            0.033,
-            0.12,
-            0.0,
-            "water",
-            x=0.34 + 0.077 * math.cos(a),
-            y=0.077 * math.sin(a),
-        )
-        for k, a in enumerate(np.radians([60.0, -60.0, 180.0]))
-    ]
+    cans = _cans_around(0.34, 0.077, [60.0, -60.0, 180.0])
     config = _config()
     with sim_system(config, 3, scene=_scene(target, *cans)) as system:
         system.pump(system.clock() + 1.5)
