@@ -643,8 +643,8 @@ ZoneName = Annotated[
 ]
 #: Zones on the simulated bench, either side of where its objects stand (reachable, in view).
 DEFAULT_ZONES: dict[str, tuple[float, float, float, float]] = {
-    "empty": (0.10, -0.38, 0.30, -0.22),
-    "full": (0.10, 0.22, 0.30, 0.38),
+    "empty": (0.0, -0.38, 0.30, -0.22),
+    "full": (0.0, 0.22, 0.30, 0.38),
 }
 
 
@@ -653,7 +653,7 @@ class PlaceConfig:
     """Setting a held bottle down (armvision.tasks.place).
 
     ``zones``: named rectangles on the table, ``[x_min, y_min, x_max, y_max]`` in the base
-    frame (metres; TOML ``[place.zones]`` with ``empty = [0.10, -0.38, 0.30, -0.22]``); a zone
+    frame (metres; TOML ``[place.zones]`` with ``empty = [0.0, -0.38, 0.30, -0.22]``); a zone
     must be at least 8 cm each way (room for a bottle). A spot is free when it keeps
     ``clearance`` m to every other object of the planning scene. Afterwards the bottle must be
     tracked within ``tolerance`` m of the asked spot, standing (its tracked height within

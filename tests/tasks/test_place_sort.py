@@ -111,6 +111,25 @@ def test_a_zone_spot_is_inside_the_zone_and_clear_of_what_stands_there() -> None
     assert len(zone_candidates((0.2, 0.2, 0.25, 0.25), 0.03)) == 0
 
 
+@pytest.mark.parametrize("zone", ["empty", "full"])
+def test_each_default_zone_holds_three_of_the_widest_sort_bottles(zone: str) -> None:
+    # A sort scene sends up to three bottles to one zone (the first two fills go either side
+    # of the threshold). Filled one after the other, the default zone takes three of the
+    # widest (radius 3.7 cm, tracked 4 mm wider by the planning scene's margin), each spot
+    # inside it, 3 cm clear of the others and reachable.
+    rect = Config().place.zones[zone]
+    held = dataclasses.replace(HELD, radius=0.037)
+    taken: list[Body] = []
+    for k in range(3):
+        spot = zone_spot(rect, held, taken, 0.03, 0.05, VX300S)
+        assert spot is not None, f"no room for bottle {k + 1}"
+        assert rect[0] + 0.037 - 1e-9 <= spot[0] <= rect[2] - 0.037 + 1e-9
+        assert rect[1] + 0.037 - 1e-9 <= spot[1] <= rect[3] - 0.037 + 1e-9
+        for body in taken:
+            assert math.dist(spot, body.xy) >= 0.037 + body.radius + 0.03 - 1e-9
+        taken.append(Body((float(spot[0]), float(spot[1])), 0.041, 0.0, 0.24, "bottle", k))
+
+
 # --------------------------------------------------------------------------- sort rules
 
 
