@@ -174,7 +174,7 @@ def test_a_bottle_blocked_all_round_is_refused_and_nothing_moves() -> None:
         assert status.error.startswith(f"every approach to bottle {track.id} at ("), status.error
         assert "is blocked: by the bottle (track" in status.error
         assert status.error.endswith("(nothing moved)")
-        assert status.result["stages"] == []
+        assert status.result["stages"] == [] and status.result["untouched"] is True
         system.pump(system.clock() + 1.0)
         assert np.max(np.abs(system.world.joint_positions() - q0)) < 1e-3
         assert system.world.finger_position() == pytest.approx(finger0, abs=1e-3)

@@ -116,7 +116,9 @@ class AnalyzeResult:
     (x, y, z) in the base frame where it stood at the start (and stands again at the end);
     ``box_height_px`` its median box height in the frames averaged; ``view`` "in place" or
     "presented"; ``duration_s`` from start to end (clock seconds). When ``ok`` is False the
-    numbers are those of the last measurement made, if any, and ``reason`` says what failed.
+    numbers are those of the last measurement made, if any, and ``reason`` says what failed;
+    ``pick_untouched`` then says the pick for the presentation failed before the gripper
+    came to the bottle (:attr:`~armvision.tasks.grab.GrabResult.untouched`).
     """
 
     ok: bool
@@ -133,6 +135,7 @@ class AnalyzeResult:
     box_height_px: float | None = None
     view: str | None = None
     duration_s: float = 0.0
+    pick_untouched: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         def rounded(v: float | None, digits: int) -> float | None:
@@ -154,6 +157,7 @@ class AnalyzeResult:
             "box_height_px": rounded(self.box_height_px, 1),
             "view": self.view,
             "duration_s": round(self.duration_s, 3),
+            "pick_untouched": self.pick_untouched,
         }
 
 
@@ -201,6 +205,7 @@ class _Analyze:
         self.position: tuple[float, float, float] | None = None  # where the grasp found it
         self.samples: _Samples | None = None  # the last measurement, and where it was made
         self.view: str | None = None
+        self.pick_untouched = False  # the pick failed before the gripper came to the bottle
 
     # ------------------------------------------------------------ results and time
 
@@ -233,6 +238,7 @@ class _Analyze:
             box_height_px=None if samples is None else samples.box_height,
             view=view if est is not None else None,
             duration_s=self.ctx.now() - self.start,
+            pick_untouched=self.pick_untouched,
         )
 
     def remaining(self) -> float:
@@ -464,6 +470,7 @@ class _Analyze:
         assert track is not None
         grabbed: GrabResult = grab(ctx, track_id=track.id, allow_top=False)  # carried level
         if not grabbed.ok:
+            self.pick_untouched = grabbed.untouched
             return grabbed.reason
         self.picked = True
         carrier.where = "held by the gripper"

@@ -118,7 +118,8 @@ class GrabResult:
     the point between the fingertips (along the gripper's heading) the bottle's axis stands,
     m: 0 but for a shallow grasp (:data:`~armvision.tasks.grasp_plan.AHEADS_M`);
     ``from_above`` whether the bottle was grasped from above, by the cap (``grasp_z`` is
-    then, as from the side, the height of the point between the fingertips).
+    then, as from the side, the height of the point between the fingertips);
+    :attr:`untouched` whether it failed before the final approach (the bottle as it was).
     """
 
     ok: bool
@@ -137,6 +138,12 @@ class GrabResult:
     ahead: float = 0.0
     from_above: bool = False
 
+    @property
+    def untouched(self) -> bool:
+        """Failed before the final approach: the gripper never came to the bottle (a refusal,
+        or no joint path to any grasp), so another try may find its way free."""
+        return not self.ok and "approach" not in self.stages
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "ok": self.ok,
@@ -154,6 +161,7 @@ class GrabResult:
             "joint_paths_planned": self.joint_paths_planned,
             "ahead": round(self.ahead, 4),
             "from_above": self.from_above,
+            "untouched": self.untouched,
         }
 
 

@@ -52,7 +52,7 @@ from armvision.runtime.context import TaskContext, TaskError
 from armvision.tasks.analyze import AnalyzeResult, analyze
 from armvision.tasks.carry import CARRY_CLEARANCE_M, Held
 from armvision.tasks.colour import COLOUR_PALETTE
-from armvision.tasks.grab import NOTHING_MOVED, grab
+from armvision.tasks.grab import grab
 from armvision.tasks.grasp_plan import TOP_BELOW_M
 from armvision.tasks.place import (
     PlaceError,
@@ -303,7 +303,7 @@ class _Sort:
             report.reason = f"not measured: {measured.reason}"
             if measured.picked and _in_fingers(ctx):
                 report.action = "failed"  # the analysis could not put it back
-            elif NOTHING_MOVED in measured.reason:
+            elif measured.pick_untouched:
                 self.wait(report, None, "")  # its pick was refused: try again later
             return
         zone, why = rule.zone_for(measured)
@@ -338,7 +338,7 @@ class _Sort:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
             if _in_fingers(ctx):
                 report.action = "failed"  # something stays in the fingers
-            elif "approach" not in grabbed.stages:  # refused before it reached the bottle
+            elif grabbed.untouched:  # refused before it reached the bottle
                 self.wait(report, zone, why)
             return
         state = ctx.state()
