@@ -106,7 +106,12 @@ def cmd_eval_grab(args: argparse.Namespace, config: Config) -> int:
         _say(f"trial {done}/{total}, scene {row['seed']}: {verdict}")
 
     result = evaluate_grab(
-        config, args.trials, args.seed, args.calibration, None if args.json else progress
+        config,
+        args.trials,
+        args.seed,
+        args.calibration,
+        None if args.json else progress,
+        args.jobs,
     )
     if args.json:
         print(json.dumps(result, indent=2))

@@ -368,6 +368,7 @@ def add_parsers(sub: Any, eval_sub: Any) -> None:
 
     grab_eval = eval_sub.add_parser("grab", help="grasp success over random scenes")
     _trial_options(grab_eval, trials=50)
+    grab_eval.add_argument("--jobs", type=runs, default=1, help="trials at a time (processes)")
     grab_eval.add_argument("--json", action="store_true", help="one JSON object on stdout")
     arm_option(grab_eval)
     grab_eval.set_defaults(func=cmd_eval_grab)
