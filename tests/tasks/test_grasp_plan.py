@@ -219,3 +219,30 @@ def test_joint_path_goes_straight_when_free_and_around_an_obstacle_when_not() ->
     # Timed within the speed limits: no joint faster than the share of its limit.
     for (q0, q1), t in zip(itertools.pairwise(path), path_times(path, VX300S, 0.3)):
         assert np.all(np.abs(q1 - q0) / (t - 0.3) <= SPEED_FRACTION * VX300S.velocity + 1e-9)
+
+
+def test_a_far_bottle_in_a_cluster_is_taken_from_above_hovering_just_over_the_tops() -> None:
+    # 0.5 m out, bottles 7.5 cm away on either side and a can in front: no side is free, and
+    # the arm reaches above the cap pointing down only if the descent starts low: the hover
+    # point 6 cm above the tallest top near it (the fingertips, 28.5 mm below that point,
+    # 3 cm clear of the tops), not higher.
+    target = _track(1, "bottle", [0.5, 0.0, 0.1], 0.03, 0.2)
+    around = [
+        _track(2 + k, "bottle", [0.5, y, 0.1], 0.03, 0.2) for k, y in enumerate((0.075, -0.075))
+    ]
+    can = _track(5, "other", [0.425, 0.0, 0.06], 0.033, 0.12)
+    scene = PlanningScene.build([target, *around, can], None)
+    cfg = GrabConfig()
+    assert isinstance(plan_grasps(target, scene, cfg, VX300S, allow_top=False), GraspRefusal)
+    found = plan_grasps(target, scene, cfg, VX300S)
+    assert not isinstance(found, GraspRefusal), found.reason
+    best = found[0]
+    assert best.from_above and best.clearance >= cfg.clearance
+    T_hover = fk(best.hover, VX300S)
+    assert T_hover[:3, 0] == pytest.approx([0.0, 0.0, -1.0], abs=1e-6)
+    tallest = max(b.top for b in scene.bodies)  # the tracks' tops, their uncertainty added
+    assert tallest < 0.2 + 0.02
+    assert T_hover[:3, 3] == pytest.approx([0.5, 0.0, tallest + 0.06], abs=1e-6)
+    # The fingers open along the bearing (within 30 degrees), between the neighbours' caps.
+    closing = fk(best.grasp, VX300S)[:3, 1]
+    assert abs(closing[0]) > math.cos(math.radians(30.0))

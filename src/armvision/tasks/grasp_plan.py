@@ -383,7 +383,7 @@ def _top_candidate(
     R = rpy_to_R(0.0, math.radians(TOP_PITCH_DEG), yaw)
     p_grasp = np.array([bottle.xy[0], bottle.xy[1], bottle.top - TOP_BELOW_M])
     p_pre = p_grasp + np.array([0.0, 0.0, TOP_ABOVE_M])
-    p_hover = np.array([p_pre[0], p_pre[1], max(hover_z + TOP_ABOVE_M, p_pre[2])])
+    p_hover = np.array([p_pre[0], p_pre[1], max(hover_z, p_pre[2])])
     closed = max(TOP_NECK_SHARE * bottle.radius + FINGER_PAD_INSET, model.finger_limits[0])
     moves = _checked_moves(R, p_grasp, p_pre, p_hover, closed, check, cfg, model)
     score = min(moves.clearance, ENOUGH_CLEARANCE_M) - TOP_PENALTY
