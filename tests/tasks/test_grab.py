@@ -291,28 +291,55 @@ def test_through_the_dynamixel_driver_the_grab_takes_the_grippers_confirmation(
         assert system.world.T_base_object("bottle")[2, 3] - z0 == pytest.approx(0.10, abs=0.01)
 
 
-def test_through_the_dynamixel_driver_a_close_on_nothing_is_no_grasp_and_the_grab_stops(
+def _taken_away_at_close(world, monkeypatch: pytest.MonkeyPatch, spots: list) -> None:
+    """The bottle is taken away (by the simulator, as a hand would) just before the gripper
+    closes, to the next of ``spots`` (as long as there is one)."""
+    close = TaskContext.close_gripper
+
+    def close_on_nothing(ctx: TaskContext) -> None:
+        if spots:
+            world.set_object_pose("bottle", make_T(np.eye(3), spots.pop(0)))
+        close(ctx)
+
+    monkeypatch.setattr(TaskContext, "close_gripper", close_on_nothing)
+
+
+def test_through_the_dynamixel_driver_a_close_on_nothing_is_looked_at_again_and_retaken(
     monkeypatch,
 ) -> None:
-    # The bottle is taken away (by the simulator, as a hand would) just before the gripper
-    # closes: the gripper does not confirm, the task says so, opens and does not lift.
+    # The bottle is taken away as the gripper closes: the gripper does not confirm, the task
+    # opens, backs off to the safe start pose, looks again and takes the bottle where it now
+    # stands.
     pytest.importorskip("dynamixel_sdk")
     with sim_system(_emulated(), seed=2, scene=_scene(BOTTLE)) as system:
         world = system.world
         answers = _spy_confirmations(system.arm.gripper, monkeypatch)
-        close = TaskContext.close_gripper
+        _taken_away_at_close(world, monkeypatch, [[0.30, 0.30, 0.0]])
+        status = system.run_task("grab", grab)
+        assert status.phase == "succeeded", status.error
+        assert answers == [False, True, True]
+        stages = status.result["stages"]
+        assert stages.index("missed") < stages.index("closed")
+        assert world.held_object() == "bottle"
+        held_xy = world.T_base_object("bottle")[:2, 3]
+        assert held_xy == pytest.approx([0.30, 0.30], abs=0.02)
 
-        def close_on_nothing(ctx: TaskContext) -> None:
-            world.set_object_pose("bottle", make_T(np.eye(3), [0.30, 0.40, 0.0]))
-            close(ctx)
 
-        monkeypatch.setattr(TaskContext, "close_gripper", close_on_nothing)
+def test_through_the_dynamixel_driver_two_closes_on_nothing_end_the_grab_open(
+    monkeypatch,
+) -> None:
+    # Taken away at both closes: the task says so, opens and does not lift.
+    pytest.importorskip("dynamixel_sdk")
+    with sim_system(_emulated(), seed=2, scene=_scene(BOTTLE)) as system:
+        world = system.world
+        answers = _spy_confirmations(system.arm.gripper, monkeypatch)
+        _taken_away_at_close(world, monkeypatch, [[0.30, 0.30, 0.0], [0.30, -0.30, 0.0]])
         status = system.run_task("grab", grab)
         assert status.phase == "failed"
-        assert "the gripper closed on nothing" in status.error
-        assert answers == [False]
+        assert "the gripper closed on nothing" in status.error and "twice" in status.error
+        assert answers == [False, False]
         assert status.result["stages"][-1] == "approach"
         system.pump(system.clock() + 1.0)
         assert world.held_object() is None
         assert world.finger_position() > VX300S.finger_limits[1] - 0.005  # opened again
-        assert world.T_base_object("bottle")[:3, 3] == pytest.approx([0.30, 0.40, 0.0], abs=0.01)
+        assert world.T_base_object("bottle")[:3, 3] == pytest.approx([0.30, -0.30, 0.0], abs=0.01)

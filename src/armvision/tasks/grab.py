@@ -15,7 +15,10 @@ straight joint line if free, else OMPL's RRT-Connect, timed within the joint spe
 the next candidate if no path is found); down to the pre-grasp point; re-read the track (a
 bottle that moved more than :data:`MOVED_M` is planned for again from there, one the gripper
 hides keeps the plan); straight in; close; lift; check, as below. Every configuration moved
-through was checked against the scene.
+through was checked against the scene. Should the fingers close on nothing (the bottle's
+track was off, or the fingers nudged it), they open, back out and up the way they came, and
+the arm goes back to the safe start pose, looks again for :data:`RELOOK_S` and plans the
+grasp anew, :data:`MISSED_RETRIES` time(s), before the task fails.
 
 **The paper's sequence:**
 
@@ -591,6 +594,35 @@ class _PlannedGrab(_Grab):
             f" best grasps of bottle {track.id}"
         )
 
+    def take(self, track: TrackState) -> TrackState:
+        """Plan the grasp of ``track`` (or of the bottle asked for) from where the arm is, go
+        there, approach and close; the track taken."""
+        ctx = self.ctx
+        ctx.progress(0.35, "planning the grasp")
+        state = ctx.state()
+        track_id = self.track_id if self.track_id is not None else track.id
+        track, found = self.plan_for(state, track_id, prefer=track.id)
+        self.go_to(state, track, found)
+        self.stages.append("waypoint")
+
+        ctx.progress(0.55, "final approach")
+        for _ in range(2):
+            state = ctx.state()
+            now = state.track(track.id)
+            # A track hidden by the gripper keeps the plan; one that moved is planned again.
+            if now is None or np.linalg.norm(now.p_base[:2] - track.p_base[:2]) <= MOVED_M:
+                break
+            self.replans += 1
+            track, found = self.plan_for(state, track.id)
+            self.go_to(state, track, found)
+        assert self.candidate is not None
+        self.steps("approach", self.candidate.approach)
+        self.stages.append("approach")
+
+        ctx.progress(0.7, "closing the gripper")
+        ctx.close_gripper()
+        return track
+
     def run(self) -> GrabResult:
         ctx, cfg = self.ctx, self.cfg
         self.wait_for_track(0.05)
@@ -619,35 +651,31 @@ class _PlannedGrab(_Grab):
         self.transit("safe start pose", q_safe, ctx.state())
         self.stages.append("safe_start")
 
-        ctx.progress(0.35, "planning the grasp")
-        state = ctx.state()
-        track, found = self.plan_for(state, self.track_id, prefer=track.id)
-        self.go_to(state, track, found)
-        self.stages.append("waypoint")
-
-        ctx.progress(0.55, "final approach")
-        for _ in range(2):
-            state = ctx.state()
-            now = state.track(track.id)
-            # A track hidden by the gripper keeps the plan; one that moved is planned again.
-            if now is None or np.linalg.norm(now.p_base[:2] - track.p_base[:2]) <= MOVED_M:
+        for attempt in range(1 + MISSED_RETRIES):
+            track = self.take(track)
+            if holding(ctx.arm, self.margin()):
                 break
-            self.replans += 1
-            track, found = self.plan_for(state, track.id)
-            self.go_to(state, track, found)
-        assert self.candidate is not None
-        candidate = self.candidate
-        self.steps("approach", candidate.approach)
-        self.stages.append("approach")
-
-        ctx.progress(0.7, "closing the gripper")
-        ctx.close_gripper()
-        if not holding(ctx.arm, self.margin()):
+            missed = self.candidate
+            assert missed is not None
             ctx.open_gripper()
             # Back out the way the gripper came in (checked free), then up.
-            self.steps("back off", (*tuple(reversed(candidate.approach[:-1])), candidate.pregrasp))
-            self.steps("up", (*tuple(reversed(candidate.descend[:-1])), candidate.hover))
-            raise _Abort("the gripper closed on nothing: the bottle was not between the fingers")
+            self.steps("back off", (*tuple(reversed(missed.approach[:-1])), missed.pregrasp))
+            self.steps("up", (*tuple(reversed(missed.descend[:-1])), missed.hover))
+            if attempt == MISSED_RETRIES:
+                raise _Abort(
+                    "the gripper closed on nothing: the bottle was not between the fingers"
+                    + (" (twice: it was looked at again in between)" if attempt else "")
+                )
+            # The fingers may have nudged it, or its track was off: out of the camera's way,
+            # look again, and plan anew.
+            self.stages.append("missed")
+            ctx.progress(0.3, "the gripper closed on nothing: looking again")
+            self.transit("safe start pose", q_safe, ctx.state())
+            ctx.sleep(RELOOK_S)
+            if self.track_id is None:
+                track = self.plan_for(ctx.state(), None, prefer=track.id)[0]
+        candidate = self.candidate
+        assert candidate is not None
         self.stages.append("closed")
 
         ctx.progress(0.8, f"lifting {100 * cfg.lift:.0f} cm")
@@ -665,6 +693,11 @@ class _PlannedGrab(_Grab):
 MAX_PATH_TRIES = 4
 #: A bottle's score loses this many metres per metre of its track's position uncertainty.
 CERTAINTY_WEIGHT = 2.0
+#: A grasp that closed on nothing is made again this many times, after backing off to the safe
+#: start pose and looking again for this long (s): the fingers may have nudged the bottle,
+#: or its track was off by more than they forgive.
+MISSED_RETRIES = 1
+RELOOK_S = 1.0
 #: Before refusing, the collision-aware grab plans this many times, this far apart (seconds).
 PLAN_LOOKS = 3
 PLAN_LOOK_INTERVAL_S = 1.0
