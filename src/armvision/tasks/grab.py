@@ -595,13 +595,13 @@ class _PlannedGrab(_Grab):
         )
 
     def take(self, track: TrackState) -> TrackState:
-        """Plan the grasp of ``track`` (or of the bottle asked for) from where the arm is, go
-        there, approach and close; the track taken."""
+        """Plan the grasp from where the arm is (of the bottle asked for, else of the best
+        bottle, ``track`` if it is about as good: a track the arm hid may come back as a new
+        one), go there, approach and close; the track taken."""
         ctx = self.ctx
         ctx.progress(0.35, "planning the grasp")
         state = ctx.state()
-        track_id = self.track_id if self.track_id is not None else track.id
-        track, found = self.plan_for(state, track_id, prefer=track.id)
+        track, found = self.plan_for(state, self.track_id, prefer=track.id)
         self.go_to(state, track, found)
         self.stages.append("waypoint")
 
@@ -672,8 +672,6 @@ class _PlannedGrab(_Grab):
             ctx.progress(0.3, "the gripper closed on nothing: looking again")
             self.transit("safe start pose", q_safe, ctx.state())
             ctx.sleep(RELOOK_S)
-            if self.track_id is None:
-                track = self.plan_for(ctx.state(), None, prefer=track.id)[0]
         candidate = self.candidate
         assert candidate is not None
         self.stages.append("closed")
