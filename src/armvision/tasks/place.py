@@ -278,6 +278,40 @@ FINGERTIP_AHEAD_M = 0.03
 TURN_STEP_DEG = 30
 #: Every configuration of the set-down keeps this clearance to the scene, m.
 SET_DOWN_CLEARANCE_M = 0.005
+#: A set-down at the height the bottle was lifted to (``low``, setting it aside): its body
+#: keeps this clearance to every other body while it slides, or no less than it had where it
+#: was taken (bottles 1 cm apart), m.
+SLIDE_CLEARANCE_M = 0.01
+
+
+def held_body_clearance(
+    qs: Sequence[Array] | Array, held: Held, bodies: Sequence[Body], model: ArmModel
+) -> tuple[float, str]:
+    """Least distance over the configurations ``qs`` of the held bottle (a vertical cylinder
+    of its radius and height, its axis ``held.ahead`` ahead of the point between the
+    fingertips along the gripper's heading, its bottom ``held.grasp_offset`` below that
+    point) to ``bodies`` (vertical cylinders), and which body it is to. The distance of two
+    vertical cylinders apart both across and in height is the hypotenuse of both gaps, else
+    the larger (negative when they overlap)."""
+    if not bodies:
+        return math.inf, "nothing"
+    T = fk(np.asarray(qs, dtype=float), model).reshape(-1, 4, 4)
+    heading = T[:, :2, 0]
+    norm = np.linalg.norm(heading, axis=1, keepdims=True)
+    heading = np.where(norm > 1e-6, heading / np.maximum(norm, 1e-12), 0.0)
+    xy = T[:, :2, 3] + held.ahead * heading
+    bottom = T[:, 2, 3] - held.grasp_offset
+    top = bottom + held.height
+    b_xy = np.array([b.xy for b in bodies], dtype=float).reshape(-1, 2)
+    b_r = np.array([b.radius for b in bodies], dtype=float)
+    b_bottom = np.array([b.bottom for b in bodies], dtype=float)
+    b_top = np.array([b.top for b in bodies], dtype=float)
+    d_xy = np.linalg.norm(xy[:, None, :] - b_xy[None], axis=-1) - held.radius - b_r
+    d_z = np.maximum(b_bottom[None] - top[:, None], bottom[:, None] - b_top[None])
+    apart = np.hypot(np.maximum(d_xy, 0.0), np.maximum(d_z, 0.0))
+    d = np.where((d_xy > 0.0) & (d_z > 0.0), apart, np.maximum(d_xy, d_z))
+    i, k = np.unravel_index(int(np.argmin(d)), d.shape)
+    return float(d[i, k]), bodies[int(k)].describe()
 
 
 @dataclass(frozen=True)
@@ -338,6 +372,7 @@ def plan_set_down(
     scene: PlanningScene,
     finger_closed: float,
     model: ArmModel,
+    low: bool = False,
 ) -> SetDown | str:
     """The set-down at ``spot`` from the arm at ``q_now`` (pose ``T_now``, holding the bottle),
     or why not: straight up to the carry height, straight across while turning about the
@@ -345,10 +380,14 @@ def plan_set_down(
     so the turns of :func:`_turns` are tried until one keeps the arm on one IK branch),
     straight down, open, back along the gripper's own axis (held from above: none), up.
     With the spot under the bottle already (putting it back), straight down. Every
-    configuration is checked against ``scene`` (the held bottle left out)."""
+    configuration is checked against ``scene`` (the held bottle left out). ``low``: no climb
+    to the carry height; the bottle slides across at the height it is held at (out of a
+    cluster of bottles as tall as it, over which the arm cannot lift it), its own body checked
+    against every body of the scene (:func:`held_body_clearance`, :data:`SLIDE_CLEARANCE_M`)
+    while it slides and is lowered."""
     R0 = T_now[:3, :3]
     p0 = T_now[:3, 3]
-    carry_z = max(held.carry_z, float(p0[2]))
+    carry_z = float(p0[2]) if low else max(held.carry_z, float(p0[2]))
     if float(np.linalg.norm(p0[:2] - held.grip_xy(spot, _heading(R0)))) < STAND_BACK_M:
         carry_z = float(p0[2])  # the spot is under the bottle (put back): straight down
     release_z = held.grasp_z + RELEASE_HEIGHT_M
@@ -374,6 +413,10 @@ def plan_set_down(
     start_clearance, _ = check.least(q_now[None, :], finger_closed)
     lift_needed = min(SET_DOWN_CLEARANCE_M, start_clearance - 0.002)
     carry_needed = min(SET_DOWN_CLEARANCE_M, max(start_clearance - 0.002, 0.0))
+    bodies = scene.obstacles(None)
+    if low:
+        held_start, _ = held_body_clearance(q_now[None, :], held, bodies, model)
+        slide_needed = min(SLIDE_CLEARANCE_M, max(held_start - 0.002, 0.0))
     for turn, during_lift in options:
         R = rot_z(turn) @ R0
         u = np.array([R[0, 0], R[1, 0], 0.0])
@@ -415,6 +458,15 @@ def plan_set_down(
                     f"of {thing}"
                 )
                 break
+        if hit is None and low:
+            for what, qs in (("sliding it", across), ("lowering it", down[:-1])):
+                clearance, thing = held_body_clearance(qs, held, bodies, model)
+                if clearance < slide_needed:
+                    hit = (
+                        f"{what} to {where} the bottle would come within "
+                        f"{1000 * clearance:.0f} mm of {thing}"
+                    )
+                    break
         if hit is not None:
             why = hit
             continue
@@ -456,10 +508,16 @@ class Placer:
         return PlanningScene(full.table_z, bodies, cells, full.arm), obstacles
 
     def plan(
-        self, xy: Array, scene: PlanningScene, obstacles: list[Body], footprint: bool = True
+        self,
+        xy: Array,
+        scene: PlanningScene,
+        obstacles: list[Body],
+        footprint: bool = True,
+        low: bool = False,
     ) -> SetDown | str:
         """The set-down at ``xy`` or why not; ``footprint`` False: the spot is not checked
-        for room (putting the bottle back where it stood)."""
+        for room (putting the bottle back where it stood); ``low``: slid across at the height
+        it is held at (:func:`plan_set_down`)."""
         ctx, cfg = self.ctx, self.ctx.config.place
         why = (
             None
@@ -479,7 +537,7 @@ class Placer:
         q_now = np.asarray(ctx.arm.get_joint_positions(), dtype=float)
         T_now = fk(q_now, ctx.arm.model)
         finger = float(ctx.arm.gripper.get_finger_position())
-        return plan_set_down(q_now, T_now, xy, self.held, scene, finger, ctx.arm.model)
+        return plan_set_down(q_now, T_now, xy, self.held, scene, finger, ctx.arm.model, low)
 
     def choose(
         self, x: float | None, y: float | None, zone: str | None, footprint: bool = True

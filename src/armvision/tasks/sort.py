@@ -49,14 +49,16 @@ from numpy.typing import NDArray
 from armvision.config import Config
 from armvision.fusion.tracker import TrackState
 from armvision.runtime.context import TaskContext, TaskError
+from armvision.runtime.planning_scene import PlanningScene
 from armvision.tasks.analyze import AnalyzeResult, analyze
 from armvision.tasks.carry import CARRY_CLEARANCE_M, Held
 from armvision.tasks.colour import COLOUR_PALETTE
-from armvision.tasks.grab import grab
+from armvision.tasks.grab import GrabResult, grab
 from armvision.tasks.grasp_plan import TOP_BELOW_M
 from armvision.tasks.place import (
     PlaceError,
     Placer,
+    SetDown,
     held_obstacles,
     holding,
     reachable,
@@ -75,6 +77,11 @@ MAX_BOTTLES = 12
 SETTLE_S = 1.0
 #: A bottle whose grasp is refused is tried at most this many times in all.
 MAX_TRIES = 3
+#: Setting a bottle aside (out of a cluster): the distances from where it stood tried, m
+#: (its neighbours stand 1-3 cm from it; the side grasp wants ~3 cm all round), and the
+#: headings tried at each.
+ASIDE_DISTANCES_M = (0.1, 0.13, 0.16)
+ASIDE_HEADINGS = 16
 
 
 @dataclass(frozen=True)
@@ -175,6 +182,7 @@ class BottleReport:
     place: dict[str, Any] | None = None
     picked: bool = False  # the analysis picked it to present it (and put it back)
     tries: int = 1  # grasps tried (a refused one is tried again after others moved)
+    aside: tuple[float, float] | None = None  # where it was set aside, out of a cluster
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -182,6 +190,7 @@ class BottleReport:
             "picked": self.picked,
             "tries": self.tries,
             "start": [round(v, 4) for v in self.start],
+            "aside": None if self.aside is None else [round(v, 4) for v in self.aside],
             "action": self.action,
             "reason": self.reason,
             "fill": None if self.fill is None else round(self.fill, 4),
@@ -334,6 +343,13 @@ class _Sort:
         # hangs a body's height lower, and must clear its neighbours' tops.
         top_ok = self.spot_for(now, zone, from_above=True) is not None
         grabbed = grab(ctx, track_id=now.id, allow_top=top_ok)
+        if not grabbed.ok and grabbed.untouched and not top_ok and report.aside is None:
+            # Every approach from the side is blocked, and held by the cap it cannot be
+            # carried to the zone: taken so, it is set aside nearby, then taken from there.
+            grabbed = grab(ctx, track_id=now.id, allow_top=True)
+            if grabbed.ok and grabbed.from_above:
+                self.set_aside(now, grabbed, before, report, zone, why)
+                return
         if not grabbed.ok:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
             if _in_fingers(ctx):
@@ -358,6 +374,47 @@ class _Sort:
         report.reason = f"{why}: {placed.reason}"
         if report.tries > 1:
             report.reason += f" (try {report.tries}, after other bottles were moved)"
+
+    def set_aside(
+        self,
+        track: TrackState,
+        grabbed: GrabResult,
+        before: PlanningScene,
+        report: BottleReport,
+        zone: str,
+        why: str,
+    ) -> None:
+        """The bottle ``track``, held from above, slid out of its cluster at the height it
+        was lifted to and set down on the first free spot of :func:`aside_candidates` (none:
+        stood back where it was), then taken from there to ``zone`` (:meth:`take`)."""
+        ctx = self.ctx
+        tops = [b.top for b in ctx.state().planning_scene.obstacles(track.id)]
+        finger = float(ctx.arm.gripper.get_finger_position())
+        held = Held.from_grab(grabbed, finger, track, tops, ctx.config.grab)
+        placer = Placer(ctx, held, track.id, before)
+        scene, obstacles = placer.scene()
+        last = "no spot"
+        for xy in aside_candidates(held.home_xy):
+            if in_zone(ctx.config, xy) is not None:
+                continue
+            plan = placer.plan(xy, scene, obstacles, low=True)
+            if isinstance(plan, SetDown):
+                break
+            last = plan
+        else:
+            self.put_back(placer, report, f"{why}, but it cannot be set aside ({last})")
+            return
+        self.progress(0.6, f"bottle {len(self.reports)}: setting it aside, out of its cluster")
+        aside = placer.set_down(plan, None)
+        report.aside = (float(plan.spot[0]), float(plan.spot[1]))
+        if not aside.released:
+            report.action, report.reason = "failed", f"{why}; setting it aside: {aside.reason}"
+            return
+        moved = self.track_near(plan.spot)
+        if moved is None:
+            report.reason = f"{why}: set aside, but its track was lost there"
+            return
+        self.take(moved, report, zone, f"{why} (set aside first, out of its cluster)")
 
     def wait(self, report: BottleReport, zone: str | None, why: str) -> None:
         """Keep a bottle whose grasp was refused before anything moved (its neighbours block
@@ -469,6 +526,21 @@ class _Sort:
             bottles=tuple(self.reports),
             duration_s=self.ctx.now() - self.start,
         )
+
+
+def aside_candidates(xy: Array) -> Array:
+    """Spots to set a bottle standing at ``xy`` aside on, out of its cluster: every
+    :data:`ASIDE_HEADINGS` around it at each of :data:`ASIDE_DISTANCES_M`, the nearest
+    first and, at one distance, those nearer the base first (the side grasp that follows
+    comes from the base's side)."""
+    xy = np.asarray(xy, dtype=float)
+    angles = np.linspace(0.0, 2.0 * math.pi, ASIDE_HEADINGS, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.sin(angles)])
+    spots = [xy + d * u for d in ASIDE_DISTANCES_M for u in ring]
+    order = sorted(
+        range(len(spots)), key=lambda k: (k // ASIDE_HEADINGS, float(np.linalg.norm(spots[k])))
+    )
+    return np.array([spots[k] for k in order])
 
 
 def sort(
