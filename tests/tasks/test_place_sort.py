@@ -17,8 +17,9 @@ import pytest
 from armvision.bench.system import sim_system
 from armvision.config import Config, load_config
 from armvision.errors import ConfigError
+from armvision.geometry import make_T, rpy_to_R
 from armvision.perception.liquid import LiquidLevelMeter
-from armvision.robot.kinematics import VX300S
+from armvision.robot.kinematics import VX300S, ik
 from armvision.runtime.context import TaskError
 from armvision.runtime.planning_scene import Body
 from armvision.sim.scene import (
@@ -31,8 +32,14 @@ from armvision.sim.scene import (
 from armvision.tasks.analyze import AnalyzeResult
 from armvision.tasks.carry import Held
 from armvision.tasks.grab import grab
-from armvision.tasks.place import place, spot_refusal, zone_candidates, zone_spot
-from armvision.tasks.sort import SortRule, in_zone, sort
+from armvision.tasks.place import (
+    held_body_clearance,
+    place,
+    spot_refusal,
+    zone_candidates,
+    zone_spot,
+)
+from armvision.tasks.sort import SortRule, aside_candidates, in_zone, sort
 
 BOTTLE = ObjectSpec("bottle", "bottle", 0.030, 0.20, 0.7, "juice", x=0.40, y=0.05, yaw=0.4)
 CUP = ObjectSpec("cup", "cup", 0.034, 0.10, 0.3, "water", x=0.36, y=-0.10)
@@ -135,6 +142,39 @@ def test_each_default_zone_holds_three_of_the_widest_sort_bottles(zone: str) -> 
 
 def _measured(fill: float | None, colour: str | None = None) -> AnalyzeResult:
     return AnalyzeResult(ok=True, reason="", fill=fill, colour_name=colour)
+
+
+def test_the_held_bottles_clearance_is_that_of_two_vertical_cylinders() -> None:
+    # Held from above at (0.4, 0, 0.25), 18 cm above its bottom: the bottle spans z 0.07 to
+    # 0.27 about (0.4, 0), radius 3 cm. A canister beside it (axes 10 cm apart, overlapping
+    # in height): 10 - 3 - 4 = 3 cm; a low can (its top 2 cm under the bottle's bottom, its
+    # side 4 cm off): hypot(4, 2) cm. Shallow, held 2 cm ahead along the gripper's heading
+    # (level, facing +x): the bottle's axis is at x = 0.42.
+    q, ok = ik(make_T(rpy_to_R(0.0, math.pi / 2, 0.0), [0.4, 0.0, 0.25]), VX300S.home, VX300S)
+    assert ok
+    held = Held(0.03, 0.2, 0.0, 0.18, 0.4, np.array([0.4, 0.0]), from_above=True)
+    canister = Body((0.4, 0.1), 0.04, 0.0, 0.19, "other", 3)
+    can = Body((0.5, 0.0), 0.03, 0.0, 0.05, "other", 4)
+    d, what = held_body_clearance([q], held, [can, canister], VX300S)
+    assert d == pytest.approx(0.03, abs=1e-6) and "track 3" in what
+    d, what = held_body_clearance([q], held, [can], VX300S)
+    assert d == pytest.approx(math.hypot(0.04, 0.02), abs=1e-6) and "track 4" in what
+    q, ok = ik(make_T(np.eye(3), [0.4, 0.0, 0.25]), VX300S.home, VX300S)
+    assert ok
+    shallow = dataclasses.replace(held, ahead=0.02, from_above=False)
+    d, _ = held_body_clearance([q], shallow, [canister], VX300S)
+    assert d == pytest.approx(math.hypot(0.02, 0.1) - 0.07, abs=1e-6)
+    assert held_body_clearance([q], held, [], VX300S)[0] == math.inf
+
+
+def test_aside_spots_ring_the_bottle_nearest_first_and_nearest_the_base_first() -> None:
+    spots = aside_candidates(np.array([0.4, 0.1]))
+    d = np.linalg.norm(spots - [0.4, 0.1], axis=1)
+    assert len(spots) == 48 and np.all(np.diff(np.round(d, 9)) >= 0)
+    assert np.allclose(sorted(set(np.round(d, 9))), [0.1, 0.13, 0.16])
+    first_ring = np.linalg.norm(spots[:16], axis=1)
+    assert np.all(np.diff(first_ring) >= -1e-12)
+    assert np.linalg.norm(spots[0]) == pytest.approx(math.hypot(0.4, 0.1) - 0.1, abs=0.01)
 
 
 def test_the_fill_rule_chooses_below_or_above_the_threshold() -> None:
