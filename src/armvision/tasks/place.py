@@ -22,7 +22,10 @@
    upright whichever side the collision-aware grasp came from), straight down to the release
    height, open, back out along the gripper's own axis (held from above: none), up; with
    the spot already under the bottle (putting it back), straight down; every configuration
-   checked against the planning scene as the grasp's are. A bottle held ``ahead`` of the
+   checked against the planning scene as the grasp's are. Setting a bottle aside out of a
+   cluster (the sort), the set-down is ``low``: no climb, the bottle slides across at the
+   height it was lifted to with its own body checked against every other body
+   (:func:`held_body_clearance`). A bottle held ``ahead`` of the
    point between the fingertips (a shallow grasp) is set down with that point short of the
    spot by as much. Then to the grasp's safe start pose, out
    of the camera's view (:meth:`Carrier.go_safe <armvision.tasks.carry.Carrier.go_safe>`).

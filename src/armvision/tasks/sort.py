@@ -18,7 +18,14 @@ One bottle after the other, until none is left to look at:
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
 4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side, or from
-   above if the arm can carry it so to the zone). A refusal leaves the bottle untouched and
+   above if the arm can carry it so to the zone). Where no approach from the side is free
+   and, held by the cap, the bottle would have to be lifted over its neighbours higher than
+   the arm reaches pointing down (a cluster of bottles or canisters as tall as it), it is
+   **set aside**: taken from above, slid out of the cluster at the height it was lifted to,
+   its own body kept clear of every other body (:func:`~armvision.tasks.place.plan_set_down`
+   with ``low``), set down on the first free spot of :func:`aside_candidates` (10-16 cm
+   away, nearest the base first) and taken from there; with no such spot it is stood back
+   where it was. A refusal leaves the bottle untouched and
    it is skipped as unreachable, with the planner's reason, for now: once the other bottles
    have been looked at, each refused one is tried again if some bottle has been set down
    since its refusal (a neighbour taken away may free an approach), at most
