@@ -296,3 +296,17 @@ def test_a_body_circle_wider_than_the_body_seen_is_not_taken() -> None:
     assert cap_circle is not None
     kept = det._bottle_body(uw, h, 0.2, 0.001, cap_circle)
     assert kept[1] == cap_circle[1] and kept[0] is cap_circle[0]
+
+
+def test_a_tall_sliver_is_judged_with_a_bottles_radius() -> None:
+    """A tall object seen as a 12 mm sliver (the rest hidden): the "top as wide as the body"
+    test is made with the prior radius about a centre moved back to keep the seen front. A
+    bottle's cap (near that centre, above the body's end at its shoulder) is narrow: a
+    bottle; a can stack's sliver reaches its top on the front arc: other."""
+    body = _ring(0.012, 0.012, 0.14, 300)
+    cap = _disc(0.008, 0.2, 120) + np.array([0.0, 0.018, 0.0])  # neck and cap about the moved-
+    cap[:, 2] = RNG.uniform(0.135, 0.2, len(cap))  # back centre, from the shoulder up
+    uw, h = _cluster(body, cap)
+    assert _label(uw, h, 0.012) == "bottle"
+    uw, h = _cluster(_ring(0.012, 0.012, 0.2, 400))
+    assert _label(uw, h, 0.012) == "other"

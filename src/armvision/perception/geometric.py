@@ -802,7 +802,12 @@ class GeometricDetector:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
             # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
             band = h > top - self.top_band
-            if float(np.percentile(r[band], 75)) >= self.wide_top_ratio * radius:
+            c, r_body = center, radius
+            if radius < self.bottle_min_radius:
+                away = center / max(float(np.linalg.norm(center)), 1e-9)
+                c, r_body = center + (self.bottle_prior_radius - radius) * away, self.bottle_prior_radius
+            r_top = np.linalg.norm(uw[band] - c, axis=1)
+            if float(np.percentile(r_top, 75)) >= self.wide_top_ratio * r_body:
                 return "other"
         if top >= self.bottle_min_height or neck or capped:
             return "bottle"
