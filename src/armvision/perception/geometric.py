@@ -659,12 +659,17 @@ class GeometricDetector:
                     wall[np.flatnonzero(body)[fit[3]]] = True
                     res = np.linalg.norm(uw - fit[0], axis=1) - fit[1]
                     return fit[0], fit[1], res, wall
-        if radius >= self.bottle_min_radius:
-            return circle
-        away = center / max(float(np.linalg.norm(center)), 1e-9)
-        center = center + (self.bottle_prior_radius - radius) * away
-        radius = self.bottle_prior_radius
+        center, radius = self._widened(center, radius)
         return center, radius, circle[2], circle[3]  # the score judges the fit to what was seen
+
+    def _widened(self, center: Array, radius: float) -> tuple[Array, float]:
+        """A circle narrower than ``bottle_min_radius`` as ``bottle_prior_radius`` wide, its
+        centre moved away from the camera (at the origin) so that its front stays; any other
+        unchanged."""
+        if radius >= self.bottle_min_radius:
+            return center, radius
+        away = center / max(float(np.linalg.norm(center)), 1e-9)
+        return center + (self.bottle_prior_radius - radius) * away, self.bottle_prior_radius
 
     def _flat_face(self, uw: Array) -> _Circle | None:
         """A cluster without a round wall as a footprint circle: its width across the view
@@ -802,10 +807,7 @@ class GeometricDetector:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
             # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
             band = h > top - self.top_band
-            c, r_body = center, radius
-            if radius < self.bottle_min_radius:
-                away = center / max(float(np.linalg.norm(center)), 1e-9)
-                c, r_body = center + (self.bottle_prior_radius - radius) * away, self.bottle_prior_radius
+            c, r_body = self._widened(center, radius)
             r_top = np.linalg.norm(uw[band] - c, axis=1)
             if float(np.percentile(r_top, 75)) >= self.wide_top_ratio * r_body:
                 return "other"
