@@ -18,19 +18,19 @@ One bottle after the other, until none is left to look at:
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
 4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side, or from
-   above if the arm can carry it so to the zone). Where no approach from the side is free
-   and, held by the cap, the bottle would have to be lifted over its neighbours higher than
-   the arm reaches pointing down (a cluster of bottles or canisters as tall as it), it is
-   **set aside**: taken from above, slid out of the cluster at the height it was lifted to,
-   its own body kept clear of every other body (:func:`~armvision.tasks.place.plan_set_down`
-   with ``low``), set down on the first free spot of :func:`aside_candidates` (10-16 cm
-   away, nearest the base first) and taken from there; with no such spot it is stood back
-   where it was. A refusal leaves the bottle untouched and
+   above if the arm can carry it so to the zone). A refusal leaves the bottle untouched and
    it is skipped as unreachable, with the planner's reason, for now: once the other bottles
    have been looked at, each refused one is tried again if some bottle has been set down
    since its refusal (a neighbour taken away may free an approach), at most
    :data:`MAX_TRIES` grasps in all. A bottle whose pick for the measurement was refused
-   waits the same way.
+   waits the same way. When no bottle has been set down since any refusal, a refused bottle
+   that, held by the cap, would have to be lifted over its neighbours higher than the arm
+   reaches pointing down (a cluster of bottles or canisters as tall as it) is **set aside**
+   (once): taken from above, slid out of the cluster at the height it was lifted to, its
+   own body kept clear of every other body (:func:`~armvision.tasks.place.plan_set_down`
+   with ``low``), set down on the first free spot of :func:`aside_candidates` (10-16 cm
+   away, nearest the base first) and taken from there; with no such spot it is stood back
+   where it was and waits again.
 5. **Place** it on a free spot of the zone (:class:`~armvision.tasks.place.Placer`: the
    analyze task's carrying moves, then the check of where it stands). Should the zone have
    no spot for the bottle as the fingers measured it, it is put back where it stood.
@@ -263,6 +263,7 @@ class _Sort:
         self.start = ctx.now()
         self.reports: list[BottleReport] = []
         self.waiting: list[_Waiting] = []
+        self.aside_tried: set[int] = set()  # reports (by track id) a set-aside was tried for
 
     def handled(self, track: TrackState) -> bool:
         return any(
@@ -335,8 +336,12 @@ class _Sort:
             return
         self.take(now, report, zone, why)
 
-    def take(self, now: TrackState, report: BottleReport, zone: str, why: str) -> None:
-        """Grab the measured bottle (track ``now``) and place it in ``zone``."""
+    def take(
+        self, now: TrackState, report: BottleReport, zone: str, why: str, aside: bool = False
+    ) -> None:
+        """Grab the measured bottle (track ``now``) and place it in ``zone``; ``aside``: if
+        every approach from the side is refused and it cannot be carried to the zone held by
+        the cap, set it aside first (:meth:`set_aside`)."""
         ctx = self.ctx
         if in_zone(ctx.config, now.p_base[:2]) == zone:
             report.action, report.reason = "in zone", f"{why}: already in {zone!r}"
@@ -350,7 +355,7 @@ class _Sort:
         # hangs a body's height lower, and must clear its neighbours' tops.
         top_ok = self.spot_for(now, zone, from_above=True) is not None
         grabbed = grab(ctx, track_id=now.id, allow_top=top_ok)
-        if not grabbed.ok and grabbed.untouched and not top_ok and report.aside is None:
+        if aside and not grabbed.ok and grabbed.untouched and not top_ok:
             # Every approach from the side is blocked, and held by the cap it cannot be
             # carried to the zone: taken so, it is set aside nearby, then taken from there.
             grabbed = grab(ctx, track_id=now.id, allow_top=True)
@@ -410,6 +415,8 @@ class _Sort:
             last = plan
         else:
             self.put_back(placer, report, f"{why}, but it cannot be set aside ({last})")
+            if report.action != "failed":
+                self.wait(report, zone, why)  # back in its place: another bottle may free it
             return
         self.progress(0.6, f"bottle {len(self.reports)}: setting it aside, out of its cluster")
         aside = placer.set_down(plan, None)
@@ -425,7 +432,8 @@ class _Sort:
 
     def wait(self, report: BottleReport, zone: str | None, why: str) -> None:
         """Keep a bottle whose grasp was refused before anything moved (its neighbours block
-        every approach) for another try once some other bottle has been moved."""
+        every approach) for another try once some other bottle has been moved (or, when none
+        can be, to be set aside)."""
         self.waiting.append(_Waiting(report, zone, why, self.moved()))
 
     def moved(self) -> int:
@@ -439,6 +447,13 @@ class _Sort:
         ctx = self.ctx
         while True:
             ready = [w for w in self.waiting if w.moved < self.moved()]
+            aside = not ready
+            if aside:  # nothing moved since: set aside what no neighbour's going will free
+                ready = [
+                    w
+                    for w in self.waiting
+                    if w.zone is not None and w.report.track_id not in self.aside_tried
+                ]
             if not ready:
                 return
             waiting = ready[0]
@@ -451,10 +466,12 @@ class _Sort:
             if track is None:
                 report.reason += "; its track was lost before another try"
                 continue
+            if aside:
+                self.aside_tried.add(report.track_id)
             if waiting.zone is None:
                 self.handle(track, report)
             else:
-                self.take(track, report, waiting.zone, waiting.why)
+                self.take(track, report, waiting.zone, waiting.why, aside=aside)
             if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return
