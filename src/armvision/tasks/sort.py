@@ -30,7 +30,8 @@ One bottle after the other, until none is left to look at:
    own body kept clear of every other body (:func:`~armvision.tasks.place.plan_set_down`
    with ``low``), set down on the first free spot of :func:`aside_candidates` (10-16 cm
    away, nearest the base first) and taken from there; with no such spot it is stood back
-   where it was and waits again.
+   where it was and waits again. A bottle whose pick for the measurement was refused is set
+   aside the same way, then measured there.
 5. **Place** it on a free spot of the zone (:class:`~armvision.tasks.place.Placer`: the
    analyze task's carrying moves, then the check of where it stands). Should the zone have
    no spot for the bottle as the fingers measured it, it is put back where it stood.
@@ -360,7 +361,9 @@ class _Sort:
             # carried to the zone: taken so, it is set aside nearby, then taken from there.
             grabbed = grab(ctx, track_id=now.id, allow_top=True)
             if grabbed.ok and grabbed.from_above:
-                self.set_aside(now, grabbed, before, report, zone, why)
+                moved = self.set_aside(now, grabbed, before, report, zone, why)
+                if moved is not None:
+                    self.take(moved, report, zone, f"{why} (set aside first, out of its cluster)")
                 return
         if not grabbed.ok:
             report.reason = f"{why}, but it cannot be taken: {grabbed.reason}"
@@ -393,12 +396,14 @@ class _Sort:
         grabbed: GrabResult,
         before: PlanningScene,
         report: BottleReport,
-        zone: str,
+        zone: str | None,
         why: str,
-    ) -> None:
-        """The bottle ``track``, held from above, slid out of its cluster at the height it
-        was lifted to and set down on the first free spot of :func:`aside_candidates` (none:
-        stood back where it was), then taken from there to ``zone`` (:meth:`take`)."""
+    ) -> TrackState | None:
+        """The bottle ``track``, just grabbed (from above), slid out of its cluster at the
+        height it was lifted to and set down on the first free spot of
+        :func:`aside_candidates`: its track there. None when it was not set aside (the
+        report says why): no spot (stood back where it was, and waiting again for ``zone``,
+        None: to be measured), or it could not be set down or found there."""
         ctx = self.ctx
         tops = [b.top for b in ctx.state().planning_scene.obstacles(track.id)]
         finger = float(ctx.arm.gripper.get_finger_position())
@@ -417,18 +422,33 @@ class _Sort:
             self.put_back(placer, report, f"{why}, but it cannot be set aside ({last})")
             if report.action != "failed":
                 self.wait(report, zone, why)  # back in its place: another bottle may free it
-            return
+            return None
         self.progress(0.6, f"bottle {len(self.reports)}: setting it aside, out of its cluster")
         aside = placer.set_down(plan, None)
         report.aside = (float(plan.spot[0]), float(plan.spot[1]))
         if not aside.released:
             report.action, report.reason = "failed", f"{why}; setting it aside: {aside.reason}"
-            return
+            return None
         moved = self.track_near(plan.spot)
         if moved is None:
             report.reason = f"{why}: set aside, but its track was lost there"
+        return moved
+
+    def measure_aside(self, track: TrackState, report: BottleReport) -> None:
+        """A bottle whose pick for its measurement was refused (hidden in a cluster, every
+        approach from the side blocked): taken from above, set aside (:meth:`set_aside`),
+        then measured and sorted from there (:meth:`handle`)."""
+        ctx = self.ctx
+        before = ctx.state().planning_scene
+        grabbed = grab(ctx, track_id=track.id, allow_top=True)
+        if not grabbed.ok:
+            report.reason = f"not measured: it cannot be taken to be set aside: {grabbed.reason}"
+            if _in_fingers(ctx):
+                report.action = "failed"
             return
-        self.take(moved, report, zone, f"{why} (set aside first, out of its cluster)")
+        moved = self.set_aside(track, grabbed, before, report, None, "to be measured")
+        if moved is not None:
+            self.handle(moved, report)
 
     def wait(self, report: BottleReport, zone: str | None, why: str) -> None:
         """Keep a bottle whose grasp was refused before anything moved (its neighbours block
@@ -449,11 +469,7 @@ class _Sort:
             ready = [w for w in self.waiting if w.moved < self.moved()]
             aside = not ready
             if aside:  # nothing moved since: set aside what no neighbour's going will free
-                ready = [
-                    w
-                    for w in self.waiting
-                    if w.zone is not None and w.report.track_id not in self.aside_tried
-                ]
+                ready = [w for w in self.waiting if w.report.track_id not in self.aside_tried]
             if not ready:
                 return
             waiting = ready[0]
@@ -469,7 +485,7 @@ class _Sort:
             if aside:
                 self.aside_tried.add(report.track_id)
             if waiting.zone is None:
-                self.handle(track, report)
+                (self.measure_aside if aside else self.handle)(track, report)
             else:
                 self.take(track, report, waiting.zone, waiting.why, aside=aside)
             if report.action == "failed" and _in_fingers(ctx):
