@@ -282,8 +282,8 @@ TURN_STEP_DEG = 30
 #: Every configuration of the set-down keeps this clearance to the scene, m.
 SET_DOWN_CLEARANCE_M = 0.005
 #: A set-down at the height the bottle was lifted to (``low``, setting it aside): its body
-#: keeps this clearance to every other body while it slides, or no less than it had where it
-#: was taken (bottles 1 cm apart), m.
+#: keeps this clearance to every other body while it slides, or (bottles 1 cm apart) comes
+#: no nearer than 2 mm closer than where it was taken, m.
 SLIDE_CLEARANCE_M = 0.01
 
 
@@ -416,10 +416,13 @@ def plan_set_down(
     start_clearance, _ = check.least(q_now[None, :], finger_closed)
     lift_needed = min(SET_DOWN_CLEARANCE_M, start_clearance - 0.002)
     carry_needed = min(SET_DOWN_CLEARANCE_M, max(start_clearance - 0.002, 0.0))
-    bodies = scene.obstacles(None)
+    # Sliding out of a cluster the bottle gets no nearer to anything than where it stood
+    # (its neighbours' bodies, grown by their uncertainty, may reach it there).
+    bodies = scene.obstacles(None) if low else ()
+    slide_needed = 0.0
     if low:
         held_start, _ = held_body_clearance(q_now[None, :], held, bodies, model)
-        slide_needed = min(SLIDE_CLEARANCE_M, max(held_start - 0.002, 0.0))
+        slide_needed = min(SLIDE_CLEARANCE_M, held_start - 0.002)
     for turn, during_lift in options:
         R = rot_z(turn) @ R0
         u = np.array([R[0, 0], R[1, 0], 0.0])
@@ -462,7 +465,7 @@ def plan_set_down(
                 )
                 break
         if hit is None and low:
-            for what, qs in (("sliding it", across), ("lowering it", down[:-1])):
+            for what, qs in (("sliding it", across), ("lowering it", down)):
                 clearance, thing = held_body_clearance(qs, held, bodies, model)
                 if clearance < slide_needed:
                     hit = (
