@@ -546,9 +546,15 @@ class Placer:
         return plan_set_down(q_now, T_now, xy, self.held, scene, finger, ctx.arm.model, low)
 
     def choose(
-        self, x: float | None, y: float | None, zone: str | None, footprint: bool = True
+        self,
+        x: float | None,
+        y: float | None,
+        zone: str | None,
+        footprint: bool = True,
+        low: bool = False,
     ) -> SetDown:
-        """The set-down to make; PlaceError (nothing moved) if there is none."""
+        """The set-down to make; PlaceError (nothing moved) if there is none. ``low``: at
+        ``(x, y)``, slid there at the height the bottle is held at (:func:`plan_set_down`)."""
         scene, obstacles = self.scene()
         if zone is not None:
             x0, y0, x1, y1 = zone_rect(self.ctx.config, zone)
@@ -567,7 +573,7 @@ class Placer:
         xy = np.array([float(x), float(y)])
         if not np.all(np.isfinite(xy)):
             raise PlaceError(f"the spot ({x}, {y}) is not a finite position in metres")
-        found = self.plan(xy, scene, obstacles, footprint)
+        found = self.plan(xy, scene, obstacles, footprint, low)
         if isinstance(found, str):
             raise PlaceError(found)
         return found

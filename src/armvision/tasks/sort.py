@@ -419,7 +419,7 @@ class _Sort:
                 break
             last = plan
         else:
-            self.put_back(placer, report, f"{why}, but it cannot be set aside ({last})")
+            self.put_back(placer, report, f"{why}, but it cannot be set aside ({last})", low=True)
             if report.action != "failed":
                 self.wait(report, zone, why)  # back in its place: another bottle may free it
             return None
@@ -492,13 +492,20 @@ class _Sort:
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return
 
-    def put_back(self, placer: Placer, report: BottleReport, why: str) -> None:
-        """Stand the held bottle back where it came from."""
+    def put_back(self, placer: Placer, report: BottleReport, why: str, low: bool = False) -> None:
+        """Stand the held bottle back where it came from; ``low``: first try sliding it back
+        at the height it is held at (taken from above out of a cluster, it cannot be lifted
+        over its neighbours), then as any set-down."""
         home = placer.held.home_xy
-        try:
-            plan = placer.choose(float(home[0]), float(home[1]), None, footprint=False)
-        except PlaceError as exc:
-            report.action, report.reason = "failed", f"{why}; it cannot be put back: {exc}"
+        plan = None
+        for slide in (True, False) if low else (False,):
+            try:
+                plan = placer.choose(float(home[0]), float(home[1]), None, False, slide)
+                break
+            except PlaceError as exc:
+                error = exc
+        if plan is None:
+            report.action, report.reason = "failed", f"{why}; it cannot be put back: {error}"
             return
         back = placer.set_down(plan, None)
         if back.released:
