@@ -132,8 +132,8 @@ def _level_plane() -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     return np.array([0.0, -1.0, 0.0]), 0.3, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
 
 
-def _label(uw: np.ndarray, h: np.ndarray, radius: float) -> str:
-    det = GeometricDetector()
+def _label(uw: np.ndarray, h: np.ndarray, radius: float, **options: float) -> str:
+    det = GeometricDetector(**options)
     center = np.array([0.0, 0.6])
     res = np.linalg.norm(uw - center, axis=1) - radius
     wall = (uw[:, 1] < 0.6) & (np.abs(res) < 0.006)
@@ -266,7 +266,7 @@ def test_a_narrow_bottle_keeps_its_front_and_takes_the_prior_radius() -> None:
     """A body circle no wider than a cap (a sliver of a bottle seen past a nearer object):
     the radius becomes ``bottle_prior_radius`` and the centre moves away from the camera (at
     the origin, toward -w) so that the seen front stays; a body of 30 mm keeps its circle."""
-    det = GeometricDetector()
+    det = GeometricDetector(bottle_min_radius=0.018)
     uw, h = _cluster(_ring(0.012, 0.015, 0.2, 300))
     circle = det._wall_circle(uw, 0.001)
     assert circle is not None and abs(circle[1] - 0.012) < 0.002
@@ -307,6 +307,7 @@ def test_a_tall_sliver_is_judged_with_a_bottles_radius() -> None:
     cap = _disc(0.008, 0.2, 120) + np.array([0.0, 0.018, 0.0])  # neck and cap about the moved-
     cap[:, 2] = RNG.uniform(0.135, 0.2, len(cap))  # back centre, from the shoulder up
     uw, h = _cluster(body, cap)
-    assert _label(uw, h, 0.012) == "bottle"
+    assert _label(uw, h, 0.012, bottle_min_radius=0.018) == "bottle"
+    assert _label(uw, h, 0.012) == "other"  # the prior is off by default
     uw, h = _cluster(_ring(0.012, 0.012, 0.2, 400))
-    assert _label(uw, h, 0.012) == "other"
+    assert _label(uw, h, 0.012, bottle_min_radius=0.018) == "other"
