@@ -129,6 +129,13 @@ def cylinder_distances(p: Array, bodies: Sequence[Body]) -> Array:
     xy, r, bottom, top = _body_arrays(bodies)
     d_xy = np.linalg.norm(p[..., None, :2] - xy, axis=-1) - r
     d_z = np.maximum(bottom - p[..., None, 2], p[..., None, 2] - top)
+    return signed_gap(d_xy, d_z)
+
+
+def signed_gap(d_xy: Array, d_z: Array) -> Array:
+    """The signed distance between a vertical cylinder and a point or another vertical
+    cylinder from their gaps across (``d_xy``) and in height (``d_z``), each negative where
+    they overlap that way: hypot of both where both are positive, else the larger."""
     outside = np.hypot(np.maximum(d_xy, 0.0), np.maximum(d_z, 0.0))
     return np.where((d_xy > 0.0) & (d_z > 0.0), outside, np.maximum(d_xy, d_z))
 

@@ -67,6 +67,7 @@ from armvision.tasks.carry import (
     Carrier,
     Held,
 )
+from armvision.tasks.collision import signed_gap
 from armvision.tasks.grab import (
     GRASP_MARGIN_M,
     HOVER_CLEARANCE_M,
@@ -294,8 +295,7 @@ def held_body_clearance(
     of its radius and height, its axis ``held.ahead`` ahead of the point between the
     fingertips along the gripper's heading, its bottom ``held.grasp_offset`` below that
     point) to ``bodies`` (vertical cylinders), and which body it is to. The distance of two
-    vertical cylinders apart both across and in height is the hypotenuse of both gaps, else
-    the larger (negative when they overlap)."""
+    vertical cylinders is :func:`~armvision.tasks.collision.signed_gap` of their gaps."""
     if not bodies:
         return math.inf, "nothing"
     T = fk(np.asarray(qs, dtype=float), model).reshape(-1, 4, 4)
@@ -311,8 +311,7 @@ def held_body_clearance(
     b_top = np.array([b.top for b in bodies], dtype=float)
     d_xy = np.linalg.norm(xy[:, None, :] - b_xy[None], axis=-1) - held.radius - b_r
     d_z = np.maximum(b_bottom[None] - top[:, None], bottom[:, None] - b_top[None])
-    apart = np.hypot(np.maximum(d_xy, 0.0), np.maximum(d_z, 0.0))
-    d = np.where((d_xy > 0.0) & (d_z > 0.0), apart, np.maximum(d_xy, d_z))
+    d = signed_gap(d_xy, d_z)
     i, k = np.unravel_index(int(np.argmin(d)), d.shape)
     return float(d[i, k]), bodies[int(k)].describe()
 
@@ -418,7 +417,7 @@ def plan_set_down(
     carry_needed = min(SET_DOWN_CLEARANCE_M, max(start_clearance - 0.002, 0.0))
     # Sliding out of a cluster the bottle gets no nearer to anything than where it stood
     # (its neighbours' bodies, grown by their uncertainty, may reach it there).
-    bodies = scene.obstacles(None) if low else ()
+    bodies = check.obstacles if low else ()
     slide_needed = 0.0
     if low:
         held_start, _ = held_body_clearance(q_now[None, :], held, bodies, model)

@@ -372,11 +372,7 @@ class _Sort:
             elif grabbed.untouched:  # refused before it reached the bottle
                 self.wait(report, zone, why)
             return
-        state = ctx.state()
-        tops = [b.top for b in state.planning_scene.obstacles(now.id)]
-        finger = float(ctx.arm.gripper.get_finger_position())
-        held = Held.from_grab(grabbed, finger, now, tops, ctx.config.grab)
-        placer = Placer(ctx, held, now.id, before)
+        placer = self.placer(now, grabbed, before)
         try:
             plan = placer.choose(None, None, zone)
         except PlaceError as exc:
@@ -389,6 +385,16 @@ class _Sort:
         report.reason = f"{why}: {placed.reason}"
         if report.tries > 1:
             report.reason += f" (try {report.tries}, after other bottles were moved)"
+
+    def placer(self, track: TrackState, grabbed: GrabResult, before: PlanningScene) -> Placer:
+        """The set-downs of the bottle ``track`` just grabbed: held as the fingers closed on
+        it, carried above every other object's top, planned against the scene ``before``
+        the grasp (whose tracks the arm did not hide)."""
+        ctx = self.ctx
+        tops = [b.top for b in ctx.state().planning_scene.obstacles(track.id)]
+        finger = float(ctx.arm.gripper.get_finger_position())
+        held = Held.from_grab(grabbed, finger, track, tops, ctx.config.grab)
+        return Placer(ctx, held, track.id, before)
 
     def set_aside(
         self,
@@ -405,10 +411,8 @@ class _Sort:
         report says why): no spot (stood back where it was, and waiting again for ``zone``,
         None: to be measured), or it could not be set down or found there."""
         ctx = self.ctx
-        tops = [b.top for b in ctx.state().planning_scene.obstacles(track.id)]
-        finger = float(ctx.arm.gripper.get_finger_position())
-        held = Held.from_grab(grabbed, finger, track, tops, ctx.config.grab)
-        placer = Placer(ctx, held, track.id, before)
+        placer = self.placer(track, grabbed, before)
+        held = placer.held
         scene, obstacles = placer.scene()
         last = "no spot"
         for xy in aside_candidates(held.home_xy):
