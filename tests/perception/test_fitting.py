@@ -11,7 +11,9 @@ from armvision.camera.frames import Intrinsics, deproject
 from armvision.perception.fitting import (
     fit_circle_geometric,
     fit_circle_kasa,
+    fit_circles_geometric,
     fit_plane,
+    solve3,
     unit_depth_rays,
 )
 
@@ -105,6 +107,56 @@ def test_circle_fit_on_a_noisy_half_arc() -> None:
     assert np.linalg.norm(c - center) < 0.002
     assert r == pytest.approx(radius, abs=0.002)
     assert np.linalg.norm(xy.mean(axis=0) - center) > 0.015  # the centroid would be far off
+
+
+def test_circles_fitted_together_are_each_as_fitted_alone() -> None:
+    """A frame's clusters are fitted in one batch: each circle must come out as its own fit
+    (same start, scale and stopping rule), and near the circle the points were drawn from."""
+    rng = np.random.default_rng(5)
+    truth = [((0.1, 0.7), 0.03, 300), ((-0.2, 0.6), 0.045, 40), ((0.0, 0.9), 0.012, 120)]
+    runs, starts = [], []
+    for center, radius, n in truth:
+        angles = rng.uniform(np.pi, 2 * np.pi, n)
+        xy = np.asarray(center) + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        runs.append(xy + rng.normal(0, 0.0015, xy.shape))
+        starts.append(fit_circle_kasa(runs[-1]))
+    bounds = np.cumsum([0] + [len(r) for r in runs])
+    scales = np.array([0.003, 0.002, 0.004])
+    centers, radii = fit_circles_geometric(
+        np.concatenate(runs),
+        bounds,
+        np.array([c for c, _ in starts]),
+        np.array([r for _, r in starts]),
+        scales,
+        iterations=8,
+        tolerance=2e-5,
+    )
+    for k, (xy, (c0, r0)) in enumerate(zip(runs, starts)):
+        c, r, _ = fit_circle_geometric(xy, c0, r0, scales[k], iterations=8, tolerance=2e-5)
+        np.testing.assert_allclose(centers[k], c, atol=1e-12)
+        assert radii[k] == pytest.approx(r, abs=1e-12)
+        assert np.linalg.norm(c - truth[k][0]) < 0.004
+        assert r == pytest.approx(truth[k][1], abs=0.004)
+
+
+def test_solve3_agrees_with_numpy_and_refuses_a_singular_system() -> None:
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        M = rng.normal(size=(12, 3)) * [1.0, 1e-3, 1e3]  # unknowns of very different scales
+        A, b = M.T @ M, rng.normal(size=3)
+        np.testing.assert_allclose(solve3(A, b), np.linalg.solve(A, b), rtol=1e-9)
+    assert solve3(np.zeros((3, 3)), np.ones(3)) is None
+    rank2 = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    assert solve3(rank2, np.ones(3)) is None
+
+
+def test_kasa_fit_is_exact_on_a_circle_far_from_the_origin() -> None:
+    """Solved about the points' mean: a circle 2 m away is as exact as one at the origin."""
+    angles = np.linspace(0.0, 2.0, 30)
+    xy = np.array([2.0, -1.5]) + 0.02 * np.column_stack([np.cos(angles), np.sin(angles)])
+    c, r = fit_circle_kasa(xy)
+    np.testing.assert_allclose(c, [2.0, -1.5], atol=1e-9)
+    assert r == pytest.approx(0.02, abs=1e-9)
 
 
 def test_unit_depth_rays_are_deprojected_pixels_at_one_metre() -> None:

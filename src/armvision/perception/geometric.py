@@ -46,8 +46,8 @@ from armvision.perception.detection import (
     Label,
 )
 from armvision.perception.fitting import (
-    fit_circle_geometric,
     fit_circle_kasa,
+    fit_circles_geometric,
     fit_plane,
     unit_depth_rays,
 )
@@ -60,6 +60,12 @@ Array = NDArray[np.float64]
 _Circle = tuple[Array, float, Array, NDArray[np.bool_]]
 
 
+#: 24 directions around a cylinder's rim (cos, sin columns) for :func:`cylinder_box`.
+_RING_COS, _RING_SIN = (
+    f(np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False))[:, None] for f in (np.cos, np.sin)
+)
+
+
 def cylinder_box(
     intr: Intrinsics, center_cam: Array, axis_cam: Array, radius: float, height: float
 ) -> tuple[float, float, float, float]:
@@ -69,8 +75,7 @@ def cylinder_box(
         e1 = cross3(axis_cam, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = cross3(axis_cam, e1)
-    angles = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
-    ring = radius * (np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2)
+    ring = radius * (_RING_COS * e1 + _RING_SIN * e2)
     rims = np.concatenate(
         [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
     )
@@ -317,8 +322,8 @@ class GeometricDetector:
         bounds = np.flatnonzero(np.diff(labels[order])) + 1
         clusters = [m for m in np.split(order, bounds) if labels[m[0]] > 0]
         detections, planar = [], []
-        for members, circle in self._merge_contained(clusters, uw, p_cam[:, 2]):
-            fitted = self._fit_cluster(
+        for members, circle, fitted in self._merge_contained(clusters, uw, p_cam[:, 2]):
+            found = self._fit_cluster(
                 frame,
                 uw[members],
                 h[idx[members]],
@@ -328,10 +333,11 @@ class GeometricDetector:
                 e1,
                 e2,
                 circle,
+                fitted,
             )
-            if fitted is not None:
-                detections.append(fitted[0])
-                planar.append(fitted[1])
+            if found is not None:
+                detections.append(found[0])
+                planar.append(found[1])
         return self._clear_containers(frame, detections, planar, normal, offset, e1, e2)
 
     # ---------------------------------------------------------------- steps
@@ -417,22 +423,27 @@ class GeometricDetector:
 
     def _merge_contained(
         self, clusters: list[NDArray[np.intp]], uw: Array, z: Array
-    ) -> list[tuple[NDArray[np.intp], _Circle | None]]:
+    ) -> list[tuple[NDArray[np.intp], _Circle | None, bool]]:
         """Clusters with a point count of at least ``min_points`` after joining every cluster
         lying inside another's wall circle to it (at least ``contained_fraction`` of its
         points within ``contained_margin`` of the circle): a cup's inside, cut from its wall
         at the rim by the depth-edge filter, or a clear bottle's cap above its liquid. Each
         with its wall circle (None: to be fitted, the cluster having grown). Objects standing
-        apart (gaps of a centimetre or more) lie outside each other's circles."""
+        apart (gaps of a centimetre or more) lie outside each other's circles. Each comes
+        with its :meth:`_wall_circle` and whether that was computed (a cluster left alone
+        keeps its own, even None or a circle too small or large: the fit need not run again)."""
         clusters = sorted(clusters, key=len, reverse=True)
-        circles: list[_Circle | None] = []
-        for members in clusters:
-            circle = None
-            if len(members) >= self.min_points:
-                circle = self._wall_circle(uw[members], self._sigma(z[members]))
-            if circle is not None and not self._radius_ok(circle[1]):
-                circle = None  # not a container's wall: contains nothing
-            circles.append(circle)
+        big = [k for k, members in enumerate(clusters) if len(members) >= self.min_points]
+        fits: list[_Circle | None] = [None] * len(clusters)
+        for k, fit in zip(
+            big,
+            self._wall_circles(
+                [uw[clusters[k]] for k in big], [self._sigma(z[clusters[k]]) for k in big]
+            ),
+        ):
+            fits[k] = fit
+        # A circle too small or large is not a container's wall: it contains nothing.
+        circles = [fit if fit is not None and self._radius_ok(fit[1]) else None for fit in fits]
         n = len(clusters)
         joins = np.eye(n, dtype=bool)
         lo = np.array([uw[m].min(axis=0) for m in clusters]).reshape(-1, 2)
@@ -461,7 +472,8 @@ class GeometricDetector:
         for parts in members_of.values():  # in the order of their first (largest) cluster
             merged = np.concatenate([clusters[k] for k in parts])
             if len(merged) >= self.min_points:
-                out.append((merged, circles[parts[0]] if len(parts) == 1 else None))
+                alone = len(parts) == 1
+                out.append((merged, fits[parts[0]] if alone else None, alone))
         return out
 
     def _radius_ok(self, radius: float) -> bool:
@@ -483,11 +495,13 @@ class GeometricDetector:
         e1: Array,
         e2: Array,
         circle: _Circle | None = None,
+        fitted: bool = False,
     ) -> tuple[Detection, bool] | None:
         """The cluster's detection, and whether it is one planar face: no round wall and its
-        points within ``flat_face_rms`` (RMS) of one line in the table plane."""
+        points within ``flat_face_rms`` (RMS) of one line in the table plane. ``circle`` is
+        its :meth:`_wall_circle` when ``fitted``; else that is fitted here."""
         sigma = self._sigma(z)
-        if circle is None:
+        if not fitted:
             circle = self._wall_circle(uw, sigma)
         k = min(self.top_rank, len(h))
         top = float(np.partition(h, len(h) - k)[len(h) - k])
@@ -520,7 +534,9 @@ class GeometricDetector:
                 center, radius, res, wall = self._bottle_body(uw, h, top, sigma, circle)
         foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
         intr = frame.intrinsics
-        x0, y0, x1, _ = cylinder_box(intr, foot_cam + 0.5 * top * normal, normal, radius, top)
+        seen_top = top
+        cylinder = cylinder_box(intr, foot_cam + 0.5 * top * normal, normal, radius, top)
+        x0, y0, x1, _ = cylinder
         at_border = x0 <= 2.0 or y0 <= 2.0 or x1 >= intr.width - 2.0
         if top < self.bottle_min_height and self.use_color and at_border:
             # A clear bottle cut by the image border (its cap outside) shows in depth only as
@@ -543,6 +559,8 @@ class GeometricDetector:
             box=(
                 bottle_box(frame.intrinsics, foot_cam, normal, radius, top)
                 if label == "bottle"
+                else cylinder
+                if top == seen_top
                 else cylinder_box(frame.intrinsics, center_cam, normal, radius, top)
             ),
             center_cam=center_cam,
@@ -694,28 +712,54 @@ class GeometricDetector:
     def _wall_circle(self, uw: Array, sigma: float) -> _Circle | None:
         """Circle through the cluster's camera-facing wall in the table plane: (centre, radius,
         every point's residual, which points are the wall); None if the wall is too thin."""
-        # A few hundred points fix a circle to well under a millimetre; thousands cost time.
-        sub = slice(None, None, max(1, len(uw) // self.max_fit_points))
-        center, radius = fit_circle_kasa(uw[sub])
-        res = np.linalg.norm(uw - center, axis=1) - radius
+        return self._wall_circles([uw], [sigma])[0]
+
+    def _wall_circles(self, uws: Sequence[Array], sigmas: Sequence[float]) -> list[_Circle | None]:
+        """:meth:`_wall_circle` of several clusters (points ``uws``, depth noise ``sigmas``),
+        their geometric fits run together (:func:`fit_circles_geometric`)."""
+        n = len(uws)
+        centers, radii = np.empty((n, 2)), np.empty(n)
+        residuals: list[Array] = []
+        for k, uw in enumerate(uws):
+            # A few hundred points fix a circle to well under a millimetre; thousands cost
+            # time.
+            centers[k], radii[k] = fit_circle_kasa(uw[:: max(1, len(uw) // self.max_fit_points)])
+            residuals.append(np.linalg.norm(uw - centers[k], axis=1) - radii[k])
         # The camera is at (0, 0) in (u, w): keep the wall facing it, near the circle.
-        to_cam = -center / max(float(np.linalg.norm(center)), 1e-9)
-        band = max(4.0 * sigma, 0.006)
+        to_cam = -centers / np.maximum(np.linalg.norm(centers, axis=1), 1e-9)[:, None]
+        bands = np.maximum(4.0 * np.asarray(sigmas, dtype=float), 0.006)
+        scales = 2.0 * np.asarray(sigmas, dtype=float)
+        walls: list[NDArray[np.bool_]] = [np.zeros(0, dtype=bool)] * n
+        live = list(range(n))
         for _ in range(2):
-            wall = ((uw - center) @ to_cam > 0.0) & (np.abs(res) < band)
-            if wall.sum() < 10:
-                return None
-            fit = np.flatnonzero(wall)[:: max(1, int(wall.sum()) // self.max_fit_points)]
-            center, radius, _ = fit_circle_geometric(
-                uw[fit],
-                center,
-                radius,
-                2.0 * sigma,
+            fits, kept = [], []
+            for k in live:
+                uw = uws[k]
+                wall = ((uw - centers[k]) @ to_cam[k] > 0.0) & (np.abs(residuals[k]) < bands[k])
+                count = int(wall.sum())
+                if count < 10:
+                    continue  # too thin a wall: no circle
+                walls[k] = wall
+                fits.append(uw[np.flatnonzero(wall)[:: max(1, count // self.max_fit_points)]])
+                kept.append(k)
+            live = kept
+            if not live:
+                break
+            centers[live], radii[live] = fit_circles_geometric(
+                np.concatenate(fits),
+                np.cumsum([0] + [len(f) for f in fits]),
+                centers[live],
+                radii[live],
+                scales[live],
                 iterations=self.fit_iterations,
                 tolerance=self.fit_tolerance,
             )
-            res = np.linalg.norm(uw - center, axis=1) - radius
-        return center, radius, res, wall
+            for k in live:
+                residuals[k] = np.linalg.norm(uws[k] - centers[k], axis=1) - radii[k]
+        out: list[_Circle | None] = [None] * n
+        for k in live:
+            out[k] = (centers[k].copy(), float(radii[k]), residuals[k], walls[k])
+        return out
 
     def _color_top(
         self,
@@ -801,7 +845,7 @@ class GeometricDetector:
         neck = False
         upper = h > 0.75 * top
         if upper.sum() >= 5:
-            neck = float(np.percentile(r[upper], 90)) < self.neck_ratio * radius
+            neck = _percentile(r[upper], 90.0) < self.neck_ratio * radius
         gap, capped = self._gap(r, h, radius)
         if rim is None:
             rim = self._rim(uw, h, center, radius, top)
@@ -812,7 +856,7 @@ class GeometricDetector:
             band = h > top - self.top_band
             c, r_body = self._widened(center, radius)
             r_top = np.linalg.norm(uw[band] - c, axis=1)
-            if float(np.percentile(r_top, 75)) >= self.wide_top_ratio * r_body:
+            if _percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
                 return "other"
         if top >= self.bottle_min_height or neck or capped:
             return "bottle"
@@ -910,7 +954,7 @@ class GeometricDetector:
         near = (uw - center) @ to_cam > 0.5 * radius
         if int(near.sum()) < 10:
             return top
-        return min(top, float(np.percentile(h[near], 99.0)))
+        return min(top, _percentile(h[near], 99.0))
 
     def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, rim: float) -> bool:
         """Whether the cluster shows the inside of an open vessel: at least
@@ -941,7 +985,7 @@ class GeometricDetector:
         if float(steps[k]) < self.bottle_gap:
             return False, False
         above = r[order[k + 1 :]]
-        return True, float(np.percentile(above, 90)) < self.gap_top_ratio * radius
+        return True, _percentile(above, 90.0) < self.gap_top_ratio * radius
 
     def _closed_top(self, r: Array, h: Array, radius: float, top: float) -> bool:
         """Whether the points inside the rim (r < ``closed_top_inner`` x the radius, away
@@ -966,11 +1010,15 @@ class GeometricDetector:
         points = points[:: max(1, len(points) // self.max_fit_points)]
         q = points - points.mean(axis=0)
         _, vecs = np.linalg.eigh(q.T @ q)
-        ordered = points[np.argsort(q @ vecs[:, 1])]
+        ordered = q[np.argsort(q @ vecs[:, 1])]
         n = len(ordered)
-        best = _line_ss(ordered)
-        for k in range(5, n - 5, max(1, n // 40)):
-            best = min(best, _line_ss(ordered[:k]) + _line_ss(ordered[k:]))
+        # Every split's two line fits at once, from prefix sums of the moments.
+        x, y = ordered[:, 0], ordered[:, 1]
+        moments = np.column_stack([np.ones(n), x, y, x * x, x * y, y * y])
+        prefix = np.vstack([np.zeros(6), np.cumsum(moments, axis=0)])
+        k = np.arange(5, n - 5, max(1, n // 40))
+        split = _moments_line_ss(prefix[k]) + _moments_line_ss(prefix[n] - prefix[k])
+        best = min(_line_ss(ordered), float(split.min(initial=np.inf)))
         return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
 
 
@@ -1005,6 +1053,26 @@ def _depth_at(frame: RGBDFrame, uv: Array) -> Array:
     """The frame's depth (m, 0 = none) at pixels ``uv`` (N, 2) inside the image."""
     depth = np.asarray(frame.depth)
     return depth[uv[:, 1].astype(int), uv[:, 0].astype(int)].astype(np.float64)
+
+
+def _moments_line_ss(m: Array) -> Array:
+    """:func:`_line_ss` of point sets given by their moments (K, 6): count, sum x, sum y,
+    sum x^2, sum xy, sum y^2 (of points near the origin, for precision): the smaller
+    eigenvalue of each set's 2x2 scatter matrix, in closed form."""
+    n, sx, sy, sxx, sxy, syy = m.T
+    cxx, cxy, cyy = sxx - sx * sx / n, sxy - sx * sy / n, syy - sy * sy / n
+    return np.maximum(0.5 * (cxx + cyy) - np.hypot(0.5 * (cxx - cyy), cxy), 0.0)
+
+
+def _percentile(a: Array, q: float) -> float:
+    """``np.percentile(a, q)`` (linear interpolation) of a non-empty 1-D array, by a
+    partial sort of the two order statistics it needs: a fraction of numpy's call time on
+    the few hundred points of a cluster."""
+    pos = q / 100.0 * (len(a) - 1)
+    lo = int(pos)
+    hi = min(lo + 1, len(a) - 1)
+    part = np.partition(a, (lo, hi))
+    return float(part[lo] + (pos - lo) * (part[hi] - part[lo]))
 
 
 def _line_ss(points: Array) -> float:

@@ -693,7 +693,11 @@ class LiquidLevelMeter:
             boxes = bboxes(probes)
             res = boxes[0] - target
             J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
-            delta = np.linalg.lstsq(J, -res, rcond=None)[0]
+            if len(idx) == 1:  # the radius alone (a detector's box): lstsq in closed form
+                jj = float(J[:, 0] @ J[:, 0])
+                delta = np.array([-float(J[:, 0] @ res) / jj if jj > 0.0 else 0.0])
+            else:
+                delta = np.linalg.lstsq(J, -res, rcond=None)[0]
             p[idx] += np.clip(delta, -0.05, 0.05)  # a bad first guess must not overshoot
             p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
             if np.max(np.abs(delta)) < 1e-5:

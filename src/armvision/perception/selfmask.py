@@ -101,7 +101,9 @@ def self_mask(
     # the segments are computed for those alone (most of a table's points are far away).
     reach = (radii + margin)[:, None]
     lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
-    inside = np.flatnonzero(keep)
+    # First against the box around them all (one test per point), then per capsule.
+    keep_in = keep & np.all((p_base >= lo.min(axis=0)) & (p_base <= hi.max(axis=0)), axis=1)
+    inside = np.flatnonzero(keep_in)
     p_in = p_base[inside]
     boxed: NDArray[np.bool_] = np.all(
         (p_in[:, None, :] >= lo[None]) & (p_in[:, None, :] <= hi[None]), axis=2

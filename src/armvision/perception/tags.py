@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.errors import PerceptionError
-from armvision.geometry import make_T, rotation_between
+from armvision.geometry import cross3, make_T, rotation_between
 from armvision.perception.fitting import fit_plane
 
 Array = NDArray[np.float64]
@@ -324,25 +324,26 @@ class TagDetector:
         a = T_pnp[:3, 0]
         b = T_pnp[:3, 1]
         # Reprojection Jacobian w.r.t. a small rotation (camera frame) and translation.
-        J = np.zeros((8, 6))
-        base = project(intr, self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]).ravel()
+        # The corners at the pose and at the six nudged poses, projected in one call.
         eps = 1e-6
+        posed = [self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]]
         for k in range(6):
             delta = np.zeros(6)
             delta[k] = eps
             R = cv2.Rodrigues(delta[:3])[0] @ T_pnp[:3, :3]
-            moved = project(intr, self._object_points @ R.T + T_pnp[:3, 3] + delta[3:]).ravel()
-            J[:, k] = (moved - base) / eps
+            posed.append(self._object_points @ R.T + T_pnp[:3, 3] + delta[3:])
+        uv = project(intr, np.concatenate(posed)).reshape(7, -1)
+        J = (uv[1:] - uv[0]).T / eps
         sigma_px = self.corner_sigma_px
         if sigma_px is None:
-            residual = project(intr, self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]) - corners
+            residual = uv[0].reshape(-1, 2) - corners
             sigma_px = max(float(np.sqrt(np.sum(residual**2) / 2.0)), 0.05)
         try:
             C_pose = sigma_px**2 * np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
             return plane_normal
         # dn = dtheta x n, so the tilt along a is dtheta . (n x a).
-        J_tilt = np.stack([np.cross(n, a), np.cross(n, b)])
+        J_tilt = np.stack([cross3(n, a), cross3(n, b)])
         C_pnp = J_tilt @ C_pose[:3, :3] @ J_tilt.T
         spread = points - points.mean(axis=0)
         A = np.column_stack([spread @ a, spread @ b])
