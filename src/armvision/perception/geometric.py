@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -58,6 +58,17 @@ from armvision.robot.kinematics import VX300S, ArmModel
 Array = NDArray[np.float64]
 #: A cluster's wall circle: centre (u, w), radius, every point's residual, which are the wall.
 _Circle = tuple[Array, float, Array, NDArray[np.bool_]]
+
+
+class _Cluster(NamedTuple):
+    """One cluster's points: table-plane coordinates (N, 2), heights and depths (N,); its
+    wall circle and whether that was fitted already (else it is still to be fitted)."""
+
+    uw: Array
+    h: Array
+    z: Array
+    circle: _Circle | None
+    fitted: bool
 
 
 #: 24 directions around a cylinder's rim (cos, sin columns) for :func:`cylinder_box`.
@@ -321,23 +332,20 @@ class GeometricDetector:
         order = np.argsort(labels, kind="stable")
         bounds = np.flatnonzero(np.diff(labels[order])) + 1
         clusters = [m for m in np.split(order, bounds) if labels[m[0]] > 0]
-        detections, planar = [], []
-        for members, circle, fitted in self._merge_contained(clusters, uw, p_cam[:, 2]):
-            found = self._fit_cluster(
-                frame,
-                uw[members],
-                h[idx[members]],
-                p_cam[members, 2],
-                normal,
-                offset,
-                e1,
-                e2,
-                circle,
-                fitted,
-            )
-            if found is not None:
-                detections.append(found[0])
-                planar.append(found[1])
+        groups = self._merge_contained(clusters, uw, p_cam[:, 2])
+        found = self._fit_clusters(
+            frame,
+            [
+                _Cluster(uw[m], h[idx[m]], p_cam[m, 2], circle, fitted)
+                for m, circle, fitted in groups
+            ],
+            normal,
+            offset,
+            e1,
+            e2,
+        )
+        detections = [f[0] for f in found if f is not None]
+        planar = [f[1] for f in found if f is not None]
         return self._clear_containers(frame, detections, planar, normal, offset, e1, e2)
 
     # ---------------------------------------------------------------- steps
@@ -500,38 +508,114 @@ class GeometricDetector:
         """The cluster's detection, and whether it is one planar face: no round wall and its
         points within ``flat_face_rms`` (RMS) of one line in the table plane. ``circle`` is
         its :meth:`_wall_circle` when ``fitted``; else that is fitted here."""
-        sigma = self._sigma(z)
-        if not fitted:
-            circle = self._wall_circle(uw, sigma)
+        cluster = _Cluster(uw, h, z, circle, fitted)
+        return self._fit_clusters(frame, [cluster], normal, offset, e1, e2)[0]
+
+    def _fit_clusters(
+        self,
+        frame: RGBDFrame,
+        clusters: Sequence[_Cluster],
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> list[tuple[Detection, bool] | None]:
+        """:meth:`_fit_cluster` of every cluster, the circle fits of one kind run together:
+        the wall circles not fitted yet, then the bottles' bodies (:meth:`_bottle_body`)."""
+        sigmas = [self._sigma(c.z) for c in clusters]
+        circles = [c.circle for c in clusters]
+        todo = [k for k, c in enumerate(clusters) if not c.fitted]
+        fits = self._wall_circles([clusters[k].uw for k in todo], [sigmas[k] for k in todo])
+        for k, fit in zip(todo, fits):
+            circles[k] = fit
+        shapes = [
+            self._shape(frame, c.uw, c.h, circles[k], normal, offset, e1, e2)
+            for k, c in enumerate(clusters)
+        ]
+        bodies = {}
+        for k, shape in enumerate(shapes):
+            if shape is not None and shape[0] == "bottle":
+                body = clusters[k].h < self.body_fit_fraction * shape[1]
+                if int(body.sum()) >= self.min_points:
+                    bodies[k] = body
+        body_fits = dict(
+            zip(
+                bodies,
+                self._wall_circles(
+                    [clusters[k].uw[body] for k, body in bodies.items()],
+                    [sigmas[k] for k in bodies],
+                ),
+            )
+        )
+        out: list[tuple[Detection, bool] | None] = []
+        for k, shape in enumerate(shapes):
+            if shape is None:
+                out.append(None)
+                continue
+            label, top, circle, planar = shape
+            if label == "bottle":
+                c = clusters[k]
+                circle = self._bottle_body(
+                    c.uw, c.h, top, sigmas[k], circle, body_fits.get(k), fitted=True
+                )
+            det = self._detection(frame, label, top, circle, sigmas[k], normal, offset, e1, e2)
+            out.append((det, planar))
+        return out
+
+    def _shape(
+        self,
+        frame: RGBDFrame,
+        uw: Array,
+        h: Array,
+        circle: _Circle | None,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> tuple[Label, float, _Circle, bool] | None:
+        """A cluster's label, height (its ``top_rank``-th highest point), circle (its wall's,
+        or without a round wall its flat face's) and whether it is one planar face; None if
+        it is too low or shapeless."""
         k = min(self.top_rank, len(h))
         top = float(np.partition(h, len(h) - k)[len(h) - k])
         if top < self.min_object_height:
             return None
-        planar = False
         if circle is None or not self._radius_ok(circle[1]):
             # No round wall: a box's face seen flat (its grazing side cut off as a depth
             # edge), or a shapeless cluster. Kept as an obstacle if it is small enough.
-            circle = self._flat_face(uw)
-            if circle is None:
+            face = self._flat_face(uw)
+            if face is None:
                 return None
-            label: Label = "other"
-            center, radius, res, wall = circle
             # A face at least 1.5 x clear_min_radius wide (not a sliver of a clear object
             # seen past a nearer one) on one line below its top (which fills an area).
             side = uw[h < 0.75 * top]
-            wide = radius >= 1.5 * self.clear_min_radius and len(side) >= 20
+            wide = face[1] >= 1.5 * self.clear_min_radius and len(side) >= 20
             planar = wide and _line_ss(side) < len(side) * self.flat_face_rms**2
-        else:
-            center, radius, res, wall = circle
-            rim = self._rim(uw, h, center, radius, top)
-            label = self._classify(uw, h, center, radius, top, res, wall, rim=rim)
-            if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
-                elevation = math.atan2(offset - top, float(np.linalg.norm(center)))
-                far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
-                if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
-                    label = "other"  # its top in view from above, yet no inside: closed
-            if label == "bottle":
-                center, radius, res, wall = self._bottle_body(uw, h, top, sigma, circle)
+            return "other", top, face, planar
+        center, radius, res, wall = circle
+        rim = self._rim(uw, h, center, radius, top)
+        label = self._classify(uw, h, center, radius, top, res, wall, rim=rim)
+        if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
+            elevation = math.atan2(offset - top, float(np.linalg.norm(center)))
+            far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
+            if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
+                label = "other"  # its top in view from above, yet no inside: closed
+        return label, top, circle, False
+
+    def _detection(
+        self,
+        frame: RGBDFrame,
+        label: Label,
+        top: float,
+        circle: _Circle,
+        sigma: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> Detection:
+        """The detection of a cluster of ``label`` and height ``top`` standing in ``circle``."""
+        center, radius, res, wall = circle
         foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
         intr = frame.intrinsics
         seen_top = top
@@ -569,7 +653,7 @@ class GeometricDetector:
             height=top,
             axis_cam=normal.copy(),
         )
-        return det, planar
+        return det
 
     def _clear_containers(
         self,
@@ -652,7 +736,14 @@ class GeometricDetector:
         return float(missing[judged].mean())
 
     def _bottle_body(
-        self, uw: Array, h: Array, top: float, sigma: float, circle: _Circle
+        self,
+        uw: Array,
+        h: Array,
+        top: float,
+        sigma: float,
+        circle: _Circle,
+        fit: _Circle | None = None,
+        fitted: bool = False,
     ) -> _Circle:
         """A bottle's wall circle: its body's, not its cap's or a sliver's.
 
@@ -666,11 +757,13 @@ class GeometricDetector:
         radius still below ``bottle_min_radius`` is a cap or a sliver of a bottle partly
         hidden, not a body: the radius becomes ``bottle_prior_radius`` and the centre moves
         away from the camera by the difference, keeping the seen front where it is (a
-        narrow circle through the front has its centre too near the camera by as much)."""
+        narrow circle through the front has its centre too near the camera by as much).
+        ``fit`` is the body's :meth:`_wall_circle` when ``fitted`` (None: too few points)."""
         center, radius = circle[0], circle[1]
         body = h < self.body_fit_fraction * top
         if int(body.sum()) >= self.min_points:
-            fit = self._wall_circle(uw[body], sigma)
+            if not fitted:
+                fit = self._wall_circle(uw[body], sigma)
             if fit is not None and self._radius_ok(fit[1]) and fit[1] > radius + 0.003:
                 to_cam = -fit[0] / max(float(np.linalg.norm(fit[0])), 1e-9)
                 across = uw[body] @ np.array([-to_cam[1], to_cam[0]])

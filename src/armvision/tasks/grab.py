@@ -653,35 +653,35 @@ class _PlannedGrab(_Grab):
 
         for attempt in range(1 + MISSED_RETRIES):
             track = self.take(track)
-            if holding(ctx.arm, self.margin()):
-                break
             missed = self.candidate
             assert missed is not None
-            ctx.open_gripper()
+            if holding(ctx.arm, self.margin()):
+                self.stages.append("closed")
+                ctx.progress(0.8, f"lifting {100 * cfg.lift:.0f} cm")
+                self.steps("lift", missed.lift)
+                self.stages.append("lifted")
+                if holding(ctx.arm, self.margin()):
+                    break
+                why = "the bottle slipped out during the lift"
+                ctx.open_gripper()
+                # Down the way it went up, the fingers open: a bottle that slid out stands
+                # between them again, one that fell lies below the grasp height.
+                self.steps("down", (*tuple(reversed(missed.lift[:-1])), missed.grasp))
+            else:
+                why = "the gripper closed on nothing: the bottle was not between the fingers"
+                ctx.open_gripper()
             # Back out the way the gripper came in (checked free), then up.
             self.steps("back off", (*tuple(reversed(missed.approach[:-1])), missed.pregrasp))
             self.steps("up", (*tuple(reversed(missed.descend[:-1])), missed.hover))
             if attempt == MISSED_RETRIES:
-                raise _Abort(
-                    "the gripper closed on nothing: the bottle was not between the fingers"
-                    + (" (twice: it was looked at again in between)" if attempt else "")
-                )
-            # The fingers may have nudged it, or its track was off: out of the camera's way,
-            # look again, and plan anew.
+                raise _Abort(why + (" (twice: it was looked at again in between)" if attempt else ""))
+            # The fingers may have nudged it, or its track was off, or it stood so that it
+            # slipped: out of the camera's way, look again, and plan anew.
             self.stages.append("missed")
-            ctx.progress(0.3, "the gripper closed on nothing: looking again")
+            ctx.progress(0.3, f"{why}: looking again")
             self.transit("safe start pose", q_safe, ctx.state())
             ctx.sleep(RELOOK_S)
-        candidate = self.candidate
-        assert candidate is not None
-        self.stages.append("closed")
-
-        ctx.progress(0.8, f"lifting {100 * cfg.lift:.0f} cm")
-        self.steps("lift", candidate.lift)
-        self.stages.append("lifted")
         finger = self.finger()
-        if not holding(ctx.arm, self.margin()):
-            raise _Abort("the bottle slipped out during the lift")
         self.stages.append("checked")
         ctx.progress(1.0, "holding the bottle")
         return self.result(True, "bottle grasped and lifted", finger)
