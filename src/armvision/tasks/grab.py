@@ -18,7 +18,9 @@ hides keeps the plan); straight in; close; lift; check, as below. Every configur
 through was checked against the scene. Should the fingers close on nothing (the bottle's
 track was off, or the fingers nudged it), they open, back out and up the way they came, and
 the arm goes back to the safe start pose, looks again for :data:`RELOOK_S` and plans the
-grasp anew, :data:`MISSED_RETRIES` time(s), before the task fails.
+grasp anew, :data:`MISSED_RETRIES` time(s), before the task fails. A bottle that slips out
+during the lift is taken anew the same way, the open gripper first going down the way it
+went up; the new attempt has ``timeout_s`` of its own.
 
 **The paper's sequence:**
 
@@ -45,7 +47,8 @@ Safety and robustness: a bottle nearer than ``min_base_distance`` to the base ax
 task; every motion's result is checked and a refused one is tried again after
 ``retry_delay_s`` (``retries`` times) before the task fails with the arm's reason; the track is
 re-read before the waypoint and before the approach, and if the bottle moved by more than
-:data:`MOVED_M` the plan is made again; the whole task fails after ``timeout_s``. A failed
+:data:`MOVED_M` the plan is made again; the task fails after ``timeout_s`` (each new attempt
+after a missed or slipped grasp has ``timeout_s`` of its own). A failed
 grasp opens the gripper and backs off to the waypoint, so nothing is left pinched. Stop
 (TaskStopped) halts the arm where it is, gripper unchanged.
 
@@ -256,6 +259,9 @@ class _Grab:
     def __init__(self, ctx: TaskContext, cfg: GrabConfig, track_id: int | None) -> None:
         self.ctx, self.cfg, self.track_id = ctx, cfg, track_id
         self.start = ctx.now()
+        #: When the current attempt started: ``timeout_s`` bounds each (the first, and each
+        #: one after a missed or slipped grasp).
+        self.attempt_start = self.start
         self.stages: list[str] = []
         self.retries = 0
         self.replans = 0
@@ -284,7 +290,7 @@ class _Grab:
         )
 
     def remaining(self) -> float:
-        return self.cfg.timeout_s - (self.ctx.now() - self.start)
+        return self.cfg.timeout_s - (self.ctx.now() - self.attempt_start)
 
     def check_time(self) -> None:
         if self.remaining() <= 0.0:
@@ -674,13 +680,16 @@ class _PlannedGrab(_Grab):
             self.steps("back off", (*tuple(reversed(missed.approach[:-1])), missed.pregrasp))
             self.steps("up", (*tuple(reversed(missed.descend[:-1])), missed.hover))
             if attempt == MISSED_RETRIES:
-                raise _Abort(why + (" (twice: it was looked at again in between)" if attempt else ""))
+                raise _Abort(
+                    why + (" (twice: it was looked at again in between)" if attempt else "")
+                )
             # The fingers may have nudged it, or its track was off, or it stood so that it
             # slipped: out of the camera's way, look again, and plan anew.
             self.stages.append("missed")
             ctx.progress(0.3, f"{why}: looking again")
             self.transit("safe start pose", q_safe, ctx.state())
             ctx.sleep(RELOOK_S)
+            self.attempt_start = ctx.now()  # the new attempt has timeout_s of its own
         finger = self.finger()
         self.stages.append("checked")
         ctx.progress(1.0, "holding the bottle")
