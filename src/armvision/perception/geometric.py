@@ -236,6 +236,8 @@ class GeometricDetector:
         contained_margin: float = 0.006,
         flat_face_rms: float = 0.003,
         body_fit_fraction: float = 0.55,
+        upper_fit_fraction: float = 0.4,
+        upper_max_radius: float = 0.05,
         bottle_min_radius: float = 0.0,
         bottle_prior_radius: float = 0.030,
         seed: int = 0,
@@ -254,6 +256,8 @@ class GeometricDetector:
         self.contained_margin = float(contained_margin)
         self.flat_face_rms = float(flat_face_rms)
         self.body_fit_fraction = float(body_fit_fraction)
+        self.upper_fit_fraction = float(upper_fit_fraction)
+        self.upper_max_radius = float(upper_max_radius)
         self.bottle_min_radius = float(bottle_min_radius)
         self.bottle_prior_radius = float(bottle_prior_radius)
         self.min_height = float(min_height)
@@ -528,6 +532,11 @@ class GeometricDetector:
         fits = self._wall_circles([clusters[k].uw for k in todo], [sigmas[k] for k in todo])
         for k, fit in zip(todo, fits):
             circles[k] = fit
+        # A tall cluster without a round wall may be a bottle joined at its foot by a lower
+        # object's rim (a cup's far wall a centimetre in front of it): its upper part's.
+        for k, c in enumerate(clusters):
+            if circles[k] is None or not self._radius_ok(circles[k][1]):
+                circles[k] = self._upper_circle(c.uw, c.h, sigmas[k]) or circles[k]
         shapes = [
             self._shape(frame, c.uw, c.h, circles[k], normal, offset, e1, e2)
             for k, c in enumerate(clusters)
@@ -535,7 +544,7 @@ class GeometricDetector:
         bodies = {}
         for k, shape in enumerate(shapes):
             if shape is not None and shape[0] == "bottle":
-                body = clusters[k].h < self.body_fit_fraction * shape[1]
+                body = self._body_mask(clusters[k].h, shape[1])
                 if int(body.sum()) >= self.min_points:
                     bodies[k] = body
         body_fits = dict(
@@ -760,7 +769,7 @@ class GeometricDetector:
         narrow circle through the front has its centre too near the camera by as much).
         ``fit`` is the body's :meth:`_wall_circle` when ``fitted`` (None: too few points)."""
         center, radius = circle[0], circle[1]
-        body = h < self.body_fit_fraction * top
+        body = self._body_mask(h, top)
         if int(body.sum()) >= self.min_points:
             if not fitted:
                 fit = self._wall_circle(uw[body], sigma)
@@ -775,6 +784,27 @@ class GeometricDetector:
                     return fit[0], fit[1], res, wall
         center, radius = self._widened(center, radius)
         return center, radius, circle[2], circle[3]  # the score judges the fit to what was seen
+
+    def _upper_circle(self, uw: Array, h: Array, sigma: float) -> _Circle | None:
+        """The wall circle of the cluster's points above ``upper_fit_fraction`` of its height
+        (residuals and wall over all its points), for a cluster at least ``bottle_min_height``
+        tall; None if shorter, or if that circle is no bottle's either (a radius outside
+        ``radius_range`` or above ``upper_max_radius``)."""
+        k = min(self.top_rank, len(h))
+        top = float(np.partition(h, len(h) - k)[len(h) - k])
+        upper = h >= self.upper_fit_fraction * top
+        if top < self.bottle_min_height or int(upper.sum()) < self.min_points:
+            return None
+        fit = self._wall_circle(uw[upper], sigma)
+        if fit is None or not self.radius_range[0] <= fit[1] <= self.upper_max_radius:
+            return None
+        wall = np.zeros(len(uw), dtype=bool)
+        wall[np.flatnonzero(upper)[fit[3]]] = True
+        return fit[0], fit[1], np.linalg.norm(uw - fit[0], axis=1) - fit[1], wall
+
+    def _body_mask(self, h: Array, top: float) -> NDArray[np.bool_]:
+        """Which points of a bottle of height ``top`` are its body's, for its circle."""
+        return h < self.body_fit_fraction * top
 
     def _widened(self, center: Array, radius: float) -> tuple[Array, float]:
         """A circle narrower than ``bottle_min_radius`` as ``bottle_prior_radius`` wide, its
