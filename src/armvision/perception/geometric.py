@@ -535,8 +535,9 @@ class GeometricDetector:
         # A tall cluster without a round wall may be a bottle joined at its foot by a lower
         # object's rim (a cup's far wall a centimetre in front of it): its upper part's.
         for k, c in enumerate(clusters):
-            if circles[k] is None or not self._radius_ok(circles[k][1]):
-                circles[k] = self._upper_circle(c.uw, c.h, sigmas[k]) or circles[k]
+            circle = circles[k]
+            if circle is None or not self._radius_ok(circle[1]):
+                circles[k] = self._upper_circle(c.uw, c.h, sigmas[k]) or circle
         shapes = [
             self._shape(frame, c.uw, c.h, circles[k], normal, offset, e1, e2)
             for k, c in enumerate(clusters)
