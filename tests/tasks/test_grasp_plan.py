@@ -21,20 +21,12 @@ from armvision.runtime.planning_scene import (
     SIGMA_FACTOR,
     TOP_MARGIN_M,
     Body,
-    DepthView,
     PlanningScene,
     occupancy_from_depth,
 )
 from armvision.tasks.collision import arm_spheres, clearances, cylinder_distances
 from armvision.tasks.grab import corridor_clear
-from armvision.tasks.grasp_plan import (
-    BottleGeometry,
-    Checker,
-    GraspRefusal,
-    _hidden_share,
-    joint_line,
-    plan_grasps,
-)
+from armvision.tasks.grasp_plan import GraspRefusal, joint_line, plan_grasps
 from armvision.tasks.joint_plan import joint_path, path_free, path_times
 from armvision.tasks.motion import SPEED_FRACTION
 
@@ -254,55 +246,3 @@ def test_a_far_bottle_in_a_cluster_is_taken_from_above_hovering_just_over_the_to
     # The fingers open along the bearing (within 30 degrees), between the neighbours' caps.
     closing = fk(best.grasp, VX300S)[:3, 1]
     assert abs(closing[0]) > math.cos(math.radians(30.0))
-
-
-def _side_view() -> DepthView:
-    """A camera 1 m out on the base's x axis, 0.3 m up, looking level back along -x at
-    ``BOTTLE`` (0.4 m out, 0.2 m tall, radius 33 mm): the table below, a wall 0.5 m behind the
-    base, and the bottle's front 0.567 m away, a flat face over its width and height."""
-    intr = Intrinsics(640, 480, 600.0, 600.0, 319.5, 239.5, "none", (0.0,) * 5)
-    R = np.column_stack([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
-    T_base_cam = make_T(R, [1.0, 0.0, 0.3])
-    v, u = np.mgrid[0:480, 0:640]
-    xn, yn = (u - intr.ppx) / intr.fx, (v - intr.ppy) / intr.fy
-    with np.errstate(divide="ignore"):
-        depth = np.where(yn > 0.3 / 1.5, 0.3 / yn, 1.5)  # the table, else the wall
-    front = 0.6 - 0.033
-    on_bottle = (np.abs(xn * front) < 0.033) & (0.3 - yn * front >= 0.0) & (0.3 - yn * front <= 0.2)
-    depth[on_bottle] = front
-    return DepthView(depth, intr, T_base_cam, None, (), 0.0)
-
-
-def test_space_behind_an_object_from_the_camera_is_hidden() -> None:
-    scene = PlanningScene.build([BOTTLE], None, view=_side_view())
-    points = [
-        [0.30, 0.0, 0.1],  # behind the bottle, seen from the camera
-        [0.60, 0.0, 0.15],  # in front of it, nearer the camera
-        [0.30, 0.15, 0.1],  # beside its shadow: the camera sees the wall through it
-        [0.30, 0.0, 0.25],  # above it
-        [1.50, 0.0, 0.1],  # behind the camera
-    ]
-    assert scene.hidden(points).tolist() == [True, False, False, False, True]
-    assert not PlanningScene.build([BOTTLE], None).hidden(points).any()  # no depth frame
-
-
-def test_an_approach_through_hidden_space_gives_way_to_one_the_camera_saw() -> None:
-    # Without a depth frame the approach from the base (through what the bottle hides from
-    # the camera) is the best; with it, the chosen way in is one the camera saw (all but its
-    # end at the bottle's edge), and the base's way in is mostly hidden.
-    cfg = GrabConfig()
-    blind = plan_grasps(BOTTLE, PlanningScene.build([BOTTLE], None), cfg, VX300S)
-    assert isinstance(blind, list) and abs(math.remainder(blind[0].yaw, 2 * math.pi)) < 0.3
-    scene = PlanningScene.build([BOTTLE], None, view=_side_view())
-    found = plan_grasps(BOTTLE, scene, cfg, VX300S)
-    assert isinstance(found, list) and found
-    check = Checker(scene, BOTTLE.id, VX300S)
-    geometry = BottleGeometry.of(BOTTLE, cfg)
-
-    def hidden_share(c) -> float:
-        u = np.array([math.cos(c.yaw), math.sin(c.yaw), 0.0])
-        return _hidden_share(geometry, u, c.standoff + c.ahead, c.grasp_z, check)
-
-    assert hidden_share(found[0]) <= 0.25
-    assert hidden_share(blind[0]) >= 0.5
-    assert abs(math.remainder(found[0].yaw, 2 * math.pi)) > 0.5

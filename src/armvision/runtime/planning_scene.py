@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, depth_rms_error, project
+from armvision.camera.frames import Intrinsics
 from armvision.fusion.tracker import TrackState
-from armvision.geometry import inv_T, transform_points
+from armvision.geometry import transform_points
 from armvision.perception.fitting import unit_depth_rays
 from armvision.perception.selfmask import arm_capsules_base, self_mask
 
@@ -56,9 +56,6 @@ GRID_MIN_POINTS = 4
 GRID_OBJECT_MARGIN_M = 0.025
 #: Only points this near the base axis are mapped (the arm's reach and a little more), m.
 GRID_RADIUS_M = 0.85
-#: A point is hidden behind what the camera saw at least this much nearer on its line of
-#: sight, m (:meth:`PlanningScene.hidden`).
-HIDDEN_MARGIN_M = 0.02
 #: Points nearer than this to a link of the arm are the arm itself, m.
 GRID_ARM_MARGIN_M = 0.03
 #: A depth jump above this share of the depth between neighbours marks an occluding edge,
@@ -276,15 +273,12 @@ class PlanningScene:
     bodies: tuple[Body, ...]
     cells: tuple[Body, ...]
     arm: tuple[Array, Array, Array] | None = None
-    #: The depth frame the grid came from, to tell seen space from hidden (:meth:`hidden`).
-    view: DepthView | None = None
 
     @staticmethod
     def build(
         tracks: Sequence[TrackState],
         grid: OccupancyGrid | None,
         joint_positions: ArrayLike | None = None,
-        view: DepthView | None = None,
     ) -> PlanningScene:
         table_z = 0.0 if grid is None else grid.table_z
         bodies = tuple(track_body(t, table_z) for t in tracks)
@@ -298,36 +292,7 @@ class PlanningScene:
             for (x, y), top in zip(grid.cells[free], grid.tops[free]):
                 cells.append(Body((float(x), float(y)), half, table_z, float(top), "occupied"))
         arm = None if joint_positions is None else arm_capsules_base(joint_positions)
-        return PlanningScene(float(table_z), bodies, tuple(cells), arm, view)
-
-    def hidden(self, points: ArrayLike) -> NDArray[np.bool_]:
-        """Which base-frame points (N, 3) the depth frame did not see through: outside the
-        image, or behind something it saw :data:`HIDDEN_MARGIN_M` (or 3 x Intel's depth
-        noise) nearer along the same line of sight. Space behind an object is unknown, not
-        free: an object standing there (a tumbler behind a jug) is in no track and no cell.
-        A pixel with no depth hides nothing (a clear wall, or nothing in range). All False
-        without a depth frame."""
-        p = np.atleast_2d(np.asarray(points, dtype=float))
-        view = self.view
-        if view is None:
-            return np.zeros(len(p), dtype=bool)
-        p_cam = transform_points(inv_T(view.T_base_cam), p)
-        uv = np.rint(project(view.intrinsics, p_cam))
-        with np.errstate(invalid="ignore"):
-            inside = (
-                (p_cam[:, 2] > 0.0)
-                & (uv[:, 0] >= 0)
-                & (uv[:, 0] < view.intrinsics.width)
-                & (uv[:, 1] >= 0)
-                & (uv[:, 1] < view.intrinsics.height)
-            )
-        hidden = ~inside
-        rows, cols = uv[inside, 1].astype(int), uv[inside, 0].astype(int)
-        seen = np.asarray(view.depth, dtype=float)[rows, cols]
-        z = p_cam[inside, 2]
-        margin = np.maximum(HIDDEN_MARGIN_M, 3.0 * depth_rms_error(z))
-        hidden[inside] = (seen > 0.0) & (seen < z - margin)
-        return hidden
+        return PlanningScene(float(table_z), bodies, tuple(cells), arm)
 
     def obstacles(self, exclude_track: int | None = None) -> tuple[Body, ...]:
         """Every body and occupied cell, but the track ``exclude_track`` (the one to grasp) and

@@ -315,9 +315,7 @@ class SystemState:
         """What the arm must keep clear of now: the table, every confirmed track with its
         uncertainty, the occupancy grid of the newest object frame and the arm's links (see
         :mod:`armvision.runtime.planning_scene`)."""
-        return PlanningScene.build(
-            self.tracks, self.occupancy, self.fusion.joint_positions, self.depth_view
-        )
+        return PlanningScene.build(self.tracks, self.occupancy, self.fusion.joint_positions)
 
     @property
     def T_base_cam(self) -> np.ndarray:

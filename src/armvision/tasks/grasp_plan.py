@@ -17,10 +17,8 @@ Each step's configurations, 2 cm apart, and the joint-space lines between the co
 executed are checked against the planning scene (every body and occupied cell but the bottle
 itself, and the table) with :mod:`armvision.tasks.collision`. A candidate is free when its
 least clearance is at least ``grab.clearance``; among the free ones the plan takes the best
-score: clearance (up to :data:`ENOUGH_CLEARANCE_M`, more does not count), then what the
-camera saw of the way in (an approach through space hidden behind the bottle or another
-object loses :data:`HIDDEN_WEIGHT` x its hidden share), then reach (an approach from the
-base's side, a level gripper). When none is free, :class:`GraspRefusal`
+score: clearance (up to :data:`ENOUGH_CLEARANCE_M`, more does not count), then reach (an
+approach from the base's side, a level gripper). When none is free, :class:`GraspRefusal`
 says what blocks them ("every approach to bottle 3 ... is blocked by the cup (track 5) at
 ...").
 
@@ -89,14 +87,6 @@ TOP_BELOW_M = 0.02
 TOP_ABOVE_M = 0.07
 TOP_NECK_SHARE = 0.45
 TOP_PENALTY = 0.05
-#: A candidate's score loses this times the share of its approach corridor the camera did
-#: not see through (behind the bottle or another object, :func:`_hidden_share`): an object
-#: standing there is in no track, and the fingers would meet it (a tumbler hidden behind a
-#: jug, tipped on the way in). The corridor's half width (the open fingers) and how far
-#: below the grasp height it is looked at, m.
-HIDDEN_WEIGHT = 0.03
-HIDDEN_HALF_WIDTH_M = 0.04
-HIDDEN_BAND_M = 0.03
 #: Straight steps are followed by IK every this far, m (the joint lines between are checked).
 CHECK_STEP_M = 0.02
 #: The grasp pose's IK branches tried, most natural first.
@@ -201,7 +191,6 @@ class Checker:
         self.model = model
         self.obstacles = scene.obstacles(exclude_track)
         self.table_z = scene.table_z
-        self.hidden = scene.hidden
 
     def least(self, Q: Array, finger: float | list[float]) -> tuple[float, str]:
         """Least clearance over configurations ``Q`` (N, 6), and what it is to."""
@@ -363,7 +352,6 @@ def _candidate(
         - 0.0002 * pitch_deg
         - 0.02 * raise_m
         - AHEAD_WEIGHT * ahead
-        - HIDDEN_WEIGHT * _hidden_share(bottle, u, standoff + ahead, grasp_z, check)
     )
     return GraspCandidate(
         yaw,
@@ -378,24 +366,6 @@ def _candidate(
         moves.clearance,
         score,
     )
-
-
-def _hidden_share(
-    bottle: BottleGeometry, u: Array, reach: float, grasp_z: float, check: Checker
-) -> float:
-    """Share of the approach corridor the camera did not see through: points from the
-    pre-grasp point (``reach`` back from the axis along ``-u``) to a centimetre off the
-    bottle's wall, at the centre and either side of the open fingers, at the grasp height and
-    :data:`HIDDEN_BAND_M` below it (:meth:`PlanningScene.hidden`)."""
-    back = np.linspace(bottle.radius + 0.01, max(reach, bottle.radius + 0.02), 6)
-    side = np.array([-u[1], u[0], 0.0])
-    points = [
-        np.array([bottle.xy[0], bottle.xy[1], z]) - b * u + w * side
-        for b in back
-        for w in (-HIDDEN_HALF_WIDTH_M, 0.0, HIDDEN_HALF_WIDTH_M)
-        for z in (grasp_z, grasp_z - HIDDEN_BAND_M)
-    ]
-    return float(check.hidden(np.array(points)).mean())
 
 
 def _top_candidate(
