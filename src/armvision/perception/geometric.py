@@ -178,7 +178,11 @@ class GeometricDetector:
     nearer object) becomes ``bottle_prior_radius``, the seen front kept in place. That prior
     is off by default (``bottle_min_radius = 0``): it shrank clear bottles' centre-error tail
     in clutter, but its jump from under 18 mm to 30 mm made a JPEG replay of the demo's
-    tracks differ from the recording by 1.46 mm (0.55 without); 0.018 turns it on.
+    tracks differ from the recording by 1.46 mm (0.55 without); 0.018 turns it on. A
+    cluster at least ``bottle_min_height`` tall with no round wall through it is fitted again
+    by its points above ``upper_fit_fraction`` of its height (:meth:`_upper_circle`): a bottle
+    joined at its foot by a lower object (a cup's far wall a centimetre in front), taken when
+    that circle is a bottle's (radius up to ``upper_max_radius``).
 
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
