@@ -657,6 +657,7 @@ class _PlannedGrab(_Grab):
         self.transit("safe start pose", q_safe, ctx.state())
         self.stages.append("safe_start")
 
+        whys: list[str] = []  # why each attempt failed
         for attempt in range(1 + MISSED_RETRIES):
             track = self.take(track)
             missed = self.candidate
@@ -679,10 +680,13 @@ class _PlannedGrab(_Grab):
             # Back out the way the gripper came in (checked free), then up.
             self.steps("back off", (*tuple(reversed(missed.approach[:-1])), missed.pregrasp))
             self.steps("up", (*tuple(reversed(missed.descend[:-1])), missed.hover))
+            whys.append(why)
             if attempt == MISSED_RETRIES:
-                raise _Abort(
-                    why + (" (twice: it was looked at again in between)" if attempt else "")
-                )
+                if attempt and whys[0] == why:
+                    why += " (twice: it was looked at again in between)"
+                elif attempt:
+                    why += f" (at the second try; at the first, {whys[0]})"
+                raise _Abort(why)
             # The fingers may have nudged it, or its track was off, or it stood so that it
             # slipped: out of the camera's way, look again, and plan anew.
             self.stages.append("missed")
