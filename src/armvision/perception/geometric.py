@@ -536,14 +536,15 @@ class GeometricDetector:
         fits = self._wall_circles([clusters[k].uw for k in todo], [sigmas[k] for k in todo])
         for k, fit in zip(todo, fits):
             circles[k] = fit
+        tops = [self._top(c.h) for c in clusters]
         # A tall cluster without a round wall may be a bottle joined at its foot by a lower
         # object's rim (a cup's far wall a centimetre in front of it): its upper part's.
         for k, c in enumerate(clusters):
             circle = circles[k]
             if circle is None or not self._radius_ok(circle[1]):
-                circles[k] = self._upper_circle(c.uw, c.h, sigmas[k]) or circle
+                circles[k] = self._upper_circle(c.uw, c.h, tops[k], sigmas[k]) or circle
         shapes = [
-            self._shape(frame, c.uw, c.h, circles[k], normal, offset, e1, e2)
+            self._shape(frame, c.uw, c.h, tops[k], circles[k], normal, offset, e1, e2)
             for k, c in enumerate(clusters)
         ]
         bodies = {}
@@ -581,17 +582,16 @@ class GeometricDetector:
         frame: RGBDFrame,
         uw: Array,
         h: Array,
+        top: float,
         circle: _Circle | None,
         normal: Array,
         offset: float,
         e1: Array,
         e2: Array,
     ) -> tuple[Label, float, _Circle, bool] | None:
-        """A cluster's label, height (its ``top_rank``-th highest point), circle (its wall's,
-        or without a round wall its flat face's) and whether it is one planar face; None if
-        it is too low or shapeless."""
-        k = min(self.top_rank, len(h))
-        top = float(np.partition(h, len(h) - k)[len(h) - k])
+        """A cluster's label, height (``top``, :meth:`_top`), circle (its wall's, or without
+        a round wall its flat face's) and whether it is one planar face; None if it is too
+        low or shapeless."""
         if top < self.min_object_height:
             return None
         if circle is None or not self._radius_ok(circle[1]):
@@ -783,29 +783,27 @@ class GeometricDetector:
                 across = uw[body] @ np.array([-to_cam[1], to_cam[0]])
                 lo, hi = np.percentile(across, [2.0, 98.0])
                 if fit[1] <= 0.65 * float(hi - lo):
-                    wall = np.zeros(len(uw), dtype=bool)
-                    wall[np.flatnonzero(body)[fit[3]]] = True
-                    res = np.linalg.norm(uw - fit[0], axis=1) - fit[1]
-                    return fit[0], fit[1], res, wall
+                    return _on_all(uw, body, fit)
         center, radius = self._widened(center, radius)
         return center, radius, circle[2], circle[3]  # the score judges the fit to what was seen
 
-    def _upper_circle(self, uw: Array, h: Array, sigma: float) -> _Circle | None:
+    def _upper_circle(self, uw: Array, h: Array, top: float, sigma: float) -> _Circle | None:
         """The wall circle of the cluster's points above ``upper_fit_fraction`` of its height
         (residuals and wall over all its points), for a cluster at least ``bottle_min_height``
         tall; None if shorter, or if that circle is no bottle's either (a radius outside
-        ``radius_range`` or above ``upper_max_radius``)."""
-        k = min(self.top_rank, len(h))
-        top = float(np.partition(h, len(h) - k)[len(h) - k])
+        ``radius_range`` or above ``upper_max_radius``). ``top``: its :meth:`_top`."""
         upper = h >= self.upper_fit_fraction * top
         if top < self.bottle_min_height or int(upper.sum()) < self.min_points:
             return None
         fit = self._wall_circle(uw[upper], sigma)
         if fit is None or not self.radius_range[0] <= fit[1] <= self.upper_max_radius:
             return None
-        wall = np.zeros(len(uw), dtype=bool)
-        wall[np.flatnonzero(upper)[fit[3]]] = True
-        return fit[0], fit[1], np.linalg.norm(uw - fit[0], axis=1) - fit[1], wall
+        return _on_all(uw, upper, fit)
+
+    def _top(self, h: Array) -> float:
+        """A cluster's height: its ``top_rank``-th highest point (above a few flying pixels)."""
+        k = min(self.top_rank, len(h))
+        return float(np.partition(h, len(h) - k)[len(h) - k])
 
     def _body_mask(self, h: Array, top: float) -> NDArray[np.bool_]:
         """Which points of a bottle of height ``top`` are its body's, for its circle."""
@@ -1148,6 +1146,14 @@ class GeometricDetector:
         split = _moments_line_ss(prefix[k]) + _moments_line_ss(prefix[n] - prefix[k])
         best = min(_line_ss(ordered), float(split.min(initial=np.inf)))
         return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
+
+
+def _on_all(uw: Array, subset: NDArray[np.bool_], fit: _Circle) -> _Circle:
+    """A circle fitted to the points ``subset`` of a cluster (``uw``) as the whole
+    cluster's: every point's residual, its wall those of the subset's wall."""
+    wall = np.zeros(len(uw), dtype=bool)
+    wall[np.flatnonzero(subset)[fit[3]]] = True
+    return fit[0], fit[1], np.linalg.norm(uw - fit[0], axis=1) - fit[1], wall
 
 
 def _components(joins: NDArray[np.bool_]) -> NDArray[np.intp]:
