@@ -325,6 +325,44 @@ def test_through_the_dynamixel_driver_a_close_on_nothing_is_looked_at_again_and_
         assert held_xy == pytest.approx([0.30, 0.30], abs=0.02)
 
 
+def test_a_bottle_that_slips_out_during_the_lift_is_looked_at_again_and_retaken(
+    monkeypatch,
+) -> None:
+    # As the first lift starts, the bottle slips out and stands on the table again, 10 cm
+    # further along the approach (the simulator moves it, as a hand would: ahead of the
+    # fingertips, clear of the gripper whichever side it came from). The gripper finds itself
+    # empty after the lift, opens, goes down the way it went up and out the way it came in,
+    # looks again and takes the bottle where it now stands. The simulator judges the second
+    # lift.
+    from armvision.tasks.grab import _PlannedGrab
+
+    with sim_system(_config(), seed=2, scene=_scene(BOTTLE)) as system:
+        world = system.world
+        start = world.T_base_object("bottle").copy()
+        steps = _PlannedGrab.steps
+        moved: list[np.ndarray] = []
+
+        def slip_at_first_lift(self, what, qs):
+            if what == "lift" and not moved:
+                yaw = self.candidate.yaw
+                ahead = start[:3, 3] + 0.10 * np.array([math.cos(yaw), math.sin(yaw), 0.0])
+                moved.append(ahead)
+                world.set_object_pose("bottle", make_T(np.eye(3), ahead))
+            steps(self, what, qs)
+
+        monkeypatch.setattr(_PlannedGrab, "steps", slip_at_first_lift)
+        status = system.run_task("grab", grab)
+        assert status.phase == "succeeded", status.error
+        assert moved  # it did slip
+        stages = status.result["stages"]
+        assert stages.count("lifted") == 2 and stages.index("missed") > stages.index("lifted")
+        system.pump(system.clock() + 1.0)
+        assert world.held_object() == "bottle"
+        held = world.T_base_object("bottle")[:3, 3]
+        assert held[:2] == pytest.approx(moved[0][:2], abs=0.02)
+        assert held[2] - start[2, 3] == pytest.approx(0.10, abs=0.01)
+
+
 def test_through_the_dynamixel_driver_two_closes_on_nothing_end_the_grab_open(
     monkeypatch,
 ) -> None:
