@@ -182,7 +182,11 @@ class GeometricDetector:
     cluster at least ``bottle_min_height`` tall with no round wall through it is fitted again
     by its points above ``upper_fit_fraction`` of its height (:meth:`_upper_circle`): a bottle
     joined at its foot by a lower object (a cup's far wall a centimetre in front), taken when
-    that circle is a bottle's (radius up to ``upper_max_radius``).
+    that circle is a bottle's (radius up to ``upper_max_radius``). A tall cluster that the
+    wide-top test calls other but that is no wider than ``hidden_neck_max_radius`` and is
+    only an upper part, its body hidden behind a nearer object (:meth:`_body_hidden`), is a
+    bottle's neck and cap seen over that object (a can stack's top is a can's width): a
+    bottle, centred on its neck.
 
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
@@ -242,6 +246,9 @@ class GeometricDetector:
         body_fit_fraction: float = 0.55,
         upper_fit_fraction: float = 0.4,
         upper_max_radius: float = 0.05,
+        hidden_neck_max_radius: float = 0.02,
+        hidden_low_fraction: float = 0.4,
+        hidden_margin: float = 0.06,
         bottle_min_radius: float = 0.0,
         bottle_prior_radius: float = 0.030,
         seed: int = 0,
@@ -262,6 +269,9 @@ class GeometricDetector:
         self.body_fit_fraction = float(body_fit_fraction)
         self.upper_fit_fraction = float(upper_fit_fraction)
         self.upper_max_radius = float(upper_max_radius)
+        self.hidden_neck_max_radius = float(hidden_neck_max_radius)
+        self.hidden_low_fraction = float(hidden_low_fraction)
+        self.hidden_margin = float(hidden_margin)
         self.bottle_min_radius = float(bottle_min_radius)
         self.bottle_prior_radius = float(bottle_prior_radius)
         self.min_height = float(min_height)
@@ -609,6 +619,13 @@ class GeometricDetector:
         center, radius, res, wall = circle
         rim = self._rim(uw, h, center, radius, top)
         label = self._classify(uw, h, center, radius, top, res, wall, rim=rim)
+        if (
+            label == "other"
+            and top >= self.bottle_min_height
+            and radius <= self.hidden_neck_max_radius
+            and self._body_hidden(frame, h, center, top, normal, offset, e1, e2)
+        ):
+            label = "bottle"  # a bottle's neck and cap above a nearer object that hides it
         if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
             elevation = math.atan2(offset - top, float(np.linalg.norm(center)))
             far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
@@ -1070,6 +1087,35 @@ class GeometricDetector:
         margin = np.maximum(0.01, 3.0 * depth_rms_error(p_cam[ok, 2]))
         hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
         return int((~hidden).sum()) >= len(ring) // 2
+
+    def _body_hidden(
+        self,
+        frame: RGBDFrame,
+        h: Array,
+        center: Array,
+        top: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> bool:
+        """Whether the cluster is only an object's upper part, its body hidden behind a nearer
+        object: its lowest points (5th percentile) above ``hidden_low_fraction`` of its top,
+        and at least 60 % of 6 samples on its axis between a tenth of its top and its lowest
+        points in the image with depth at least ``hidden_margin`` nearer than the axis (a body
+        seen would be at most its radius nearer; missing depth does not count)."""
+        low = _percentile(h, 5.0)
+        if low < self.hidden_low_fraction * top:
+            return False
+        heights = np.linspace(0.1 * top, 0.9 * low, 6)
+        foot = center[0] * e1 + center[1] * e2 - offset * normal
+        p_cam = foot + heights[:, None] * normal
+        uv, ok = _in_image(frame.intrinsics, p_cam)
+        if not ok.all():
+            return False
+        seen = _depth_at(frame, uv)
+        hidden = (seen > 0.0) & (seen < p_cam[:, 2] - self.hidden_margin)
+        return float(hidden.mean()) >= 0.6
 
     def _rim(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> float:
         """Height of the object's rim: the 99th percentile of its near wall (more than half
