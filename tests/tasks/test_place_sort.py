@@ -202,6 +202,58 @@ def test_aside_spots_ring_the_bottle_nearest_first_and_nearest_the_base_first() 
     assert np.linalg.norm(spots[0]) == pytest.approx(math.hypot(0.4, 0.1) - 0.1, abs=0.01)
 
 
+def test_the_sort_looks_again_for_bottles_uncovered_by_those_retried() -> None:
+    # A hand-worked run of the sort's loop (the grasps faked): bottle 1 is refused and waits,
+    # bottle 2 is placed; with no bottle left the sort looks again after a pause, then tries
+    # bottle 1 again, which is placed and uncovers bottle 3 behind it (in a cluttered sort
+    # scene such a bottle was never sorted); bottle 3 is sorted, and the sort ends when
+    # looking again and the retries find nothing new.
+    from types import SimpleNamespace
+
+    from armvision.tasks import sort as sort_module
+
+    config = _config()
+    sleeps: list[float] = []
+    ctx = SimpleNamespace(
+        config=config,
+        now=lambda: 0.0,
+        progress=lambda *_: None,
+        sleep=sleeps.append,
+        wait_until=lambda *_: True,
+        state=lambda: SimpleNamespace(bottles=lambda: [1]),
+    )
+    run = sort_module._Sort(ctx, SortRule("fill"))
+    tracks = {k: SimpleNamespace(id=k, p_base=np.array([0.3, 0.1 * k, 0.1])) for k in (1, 2, 3)}
+    visible = [1, 2]
+
+    def next_bottle():
+        seen = {r.track_id for r in run.reports}
+        return next((tracks[k] for k in visible if k not in seen), None)
+
+    def handle(track, report):
+        if track.id == 1:
+            run.wait(report, "full", "fill 70 %")
+        else:
+            report.action = "placed"
+
+    def retry_waiting():
+        for waiting in list(run.waiting):
+            run.waiting.remove(waiting)
+            waiting.report.action, waiting.report.tries = "placed", 2
+            visible.append(3)  # bottle 1 stood in front of it
+        return True
+
+    run.next_bottle, run.handle, run.retry_waiting = next_bottle, handle, retry_waiting
+    result = run.run()
+    assert [(b.track_id, b.action, b.tries) for b in result.bottles] == [
+        (1, "placed", 2),
+        (2, "placed", 1),
+        (3, "placed", 1),
+    ]
+    # The settle before the first bottle, then a look again each time none was left.
+    assert sleeps == [sort_module.SETTLE_S] * 3
+
+
 def test_the_fill_rule_chooses_below_or_above_the_threshold() -> None:
     rule = SortRule.make(Config(), "fill", None)
     assert rule.zone_for(_measured(0.12))[0] == "empty"

@@ -10,7 +10,10 @@ One bottle after the other, until none is left to look at:
 
 1. **The next bottle**: of the confirmed bottle tracks not standing in a zone and not yet
    handled (a handled bottle is remembered by where it stood), the one nearest the camera
-   (taking the front ones first uncovers those behind them).
+   (taking the front ones first uncovers those behind them). With none left, it looks
+   again once after :data:`SETTLE_S` (a bottle just uncovered needs a few frames to be
+   confirmed), then tries the refused ones again (step 4) and, if that moved any, looks for
+   the bottles they uncovered.
 2. **Measure** it with the analyze task (:func:`~armvision.tasks.analyze.analyze`: in place,
    or picked and presented when the view is poor, then put back). No trustworthy fill (an
    opaque wall, a hidden body: the meter says ``unknown``) or no colour name: skipped, with
@@ -294,17 +297,29 @@ class _Sort:
         ctx.progress(0.01, "waiting for the bottles' tracks")
         ctx.wait_until(lambda: bool(ctx.state().bottles()), ctx.config.grab.track_wait_s)
         ctx.sleep(SETTLE_S)
+        looked_again = False
         while len(self.reports) < MAX_BOTTLES:
             track = self.next_bottle()
+            if track is None and not looked_again:
+                # A bottle the last one moved uncovered needs a few frames to be confirmed.
+                looked_again = True
+                ctx.sleep(SETTLE_S)
+                continue
             if track is None:
-                break
+                moved = self.moved()
+                if not self.retry_waiting():
+                    return self.result()  # the bottle still in the gripper
+                if self.moved() == moved:
+                    break  # nothing moved: nothing new can have been uncovered
+                looked_again = False  # the bottles moved may have hidden others: look again
+                continue
+            looked_again = False
             report = BottleReport(track.id, (float(track.p_base[0]), float(track.p_base[1])))
             self.reports.append(report)
             self.handle(track, report)
             if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return self.result()
-        self.retry_waiting()
         return self.result()
 
     def progress(self, step: float, message: str) -> None:
@@ -464,10 +479,11 @@ class _Sort:
         """How many bottles the sort has set down so far (each changes the scene)."""
         return sum(r.action == "placed" for r in self.reports)
 
-    def retry_waiting(self) -> None:
+    def retry_waiting(self) -> bool:
         """Try each refused bottle again while some other bottle has been moved since its
         refusal (a neighbour taken away may free an approach); a bottle is tried at most
-        :data:`MAX_TRIES` times."""
+        :data:`MAX_TRIES` times. False when the sort must end (a bottle stays in the
+        gripper)."""
         ctx = self.ctx
         while True:
             ready = [w for w in self.waiting if w.moved < self.moved()]
@@ -475,7 +491,7 @@ class _Sort:
             if aside:  # nothing moved since: set aside what no neighbour's going will free
                 ready = [w for w in self.waiting if w.report.track_id not in self.aside_tried]
             if not ready:
-                return
+                return True
             waiting = ready[0]
             self.waiting.remove(waiting)
             report = waiting.report
@@ -494,7 +510,7 @@ class _Sort:
                 self.take(track, report, waiting.zone, waiting.why, aside=aside)
             if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
-                return
+                return False
 
     def put_back(self, placer: Placer, report: BottleReport, why: str, low: bool = False) -> None:
         """Stand the held bottle back where it came from; ``low``: first try sliding it back
