@@ -320,6 +320,8 @@ class _Sort:
             if report.action == "failed" and _in_fingers(ctx):
                 report.reason += "; the sort ends here, the bottle still in the gripper"
                 return self.result()
+        if len(self.reports) >= MAX_BOTTLES:
+            self.retry_waiting()  # no more new bottles, but the refused ones get their tries
         return self.result()
 
     def progress(self, step: float, message: str) -> None:
