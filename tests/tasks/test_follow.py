@@ -15,7 +15,14 @@ from armvision.errors import ConfigError
 from armvision.eval.follow import evaluate_follow
 from armvision.geometry import make_T
 from armvision.robot.kinematics import VX300S, fk
-from armvision.tasks.follow import _TagTarget, desired_ee_pose, desired_pose_and_twist, follow
+from armvision.tasks.follow import (
+    NO_FRAMES_S,
+    _lost_reason,
+    _TagTarget,
+    desired_ee_pose,
+    desired_pose_and_twist,
+    follow,
+)
 from armvision.tasks.servo import ServoGains, TargetEstimator, damped_least_squares, servo_step
 
 #: A comfortable arm pose in front of the robot, away from limits and singularities.
@@ -190,6 +197,31 @@ def test_a_loose_tag_goes_where_it_is_put() -> None:
         world.set_loose_tag_pose(3, T_target)
     with pytest.raises(SimulationError, match="4x4"):
         world.set_loose_tag_pose(7, np.eye(3))
+
+
+def test_a_target_is_lost_by_the_frames_looked_at_not_by_the_clock_alone() -> None:
+    """Hand-worked: start at 10 s, timeout 0.5 s. On a busy machine the frames come late: the
+    tag seen in the frame of 11.0 s, the newest frame processed from 11.3 s, at 11.8 s."""
+
+    def target(seen, looked):
+        return SimpleNamespace(label="tag 3", last_seen=seen, last_looked=looked)
+
+    start, timeout = 10.0, 0.5
+    # 0.8 s since it was seen, but the frames looked at since cover 0.3 s: not lost.
+    assert _lost_reason(target(11.0, 11.3), 11.8, start, timeout) is None
+    # Frames covering 0.6 s after it without it: lost, saying for how long on the clock.
+    assert _lost_reason(target(11.0, 11.6), 11.8, start, timeout) == (
+        "target lost: tag 3 not seen for 0.80 s"
+    )
+    # Never seen: frames covering more than the timeout after the start.
+    assert _lost_reason(target(None, 10.4), 10.9, start, timeout) is None
+    assert "not seen in the first 0.50 s" in _lost_reason(target(None, 10.6), 10.9, start, timeout)
+    # No frame processed at all (camera unplugged): lost once timeout + NO_FRAMES_S pass.
+    late = 11.0 + timeout + NO_FRAMES_S
+    assert _lost_reason(target(11.0, 11.0), late - 0.01, start, timeout) is None
+    reason = _lost_reason(target(11.0, 11.0), late + 0.01, start, timeout)
+    assert reason.startswith("target lost: no frame processed for 1.51 s")
+    assert _lost_reason(target(None, None), 10.0 + timeout + NO_FRAMES_S + 0.01, start, timeout)
 
 
 def test_servo_stops_smoothly_with_target_lost_half_a_second_after_the_tag_goes() -> None:

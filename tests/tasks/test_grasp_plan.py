@@ -16,6 +16,7 @@ from armvision.fusion.tracker import TrackState
 from armvision.geometry import make_T
 from armvision.robot.kinematics import VX300S, fk
 from armvision.robot.vx300s import FINGER_PAD_INSET
+from armvision.runtime.context import TaskStopped
 from armvision.runtime.planning_scene import (
     CONTAINER_RADIUS_MARGIN_M,
     SIGMA_FACTOR,
@@ -126,6 +127,21 @@ def test_a_cup_in_front_is_passed_above_or_around_and_every_step_is_clear() -> N
     pads_bottom = best.grasp_z - 0.012
     bearing_off = abs(math.remainder(best.yaw - 0.0, 2 * math.pi))
     assert pads_bottom > cup.top + cfg.clearance or bearing_off > math.radians(30)
+
+
+def test_stop_is_consulted_between_candidates_and_ends_the_plan() -> None:
+    """A plan takes seconds on a busy machine: Stop (the task's check) must end it midway."""
+    scene = PlanningScene.build([BOTTLE, CUP_IN_FRONT], None)
+    calls = []
+
+    def stop() -> None:
+        calls.append(1)
+        if len(calls) == 3:
+            raise TaskStopped("stopped")
+
+    with pytest.raises(TaskStopped):
+        plan_grasps(BOTTLE, scene, GrabConfig(), VX300S, stop=stop)
+    assert len(calls) == 3  # consulted before each candidate, and nothing after the third
 
 
 def test_a_surrounded_bottle_is_refused_with_what_blocks_it() -> None:

@@ -20,7 +20,7 @@ from armvision.errors import ConfigError
 from armvision.geometry import make_T, rpy_to_R
 from armvision.perception.liquid import LiquidLevelMeter
 from armvision.robot.kinematics import VX300S, fk, ik
-from armvision.runtime.context import TaskError
+from armvision.runtime.context import TaskError, TaskStopped
 from armvision.runtime.planning_scene import Body, PlanningScene
 from armvision.sim.scene import (
     SORT_FILL_MARGIN,
@@ -190,6 +190,16 @@ def test_a_bottle_held_between_tall_neighbours_is_slid_back_not_lifted_over_them
         assert d >= 0.0149 - 0.002  # 1.5 cm where it was taken, never 2 mm nearer
     final = np.asarray(slid.lower[-1])
     assert np.allclose(fk(final, VX300S)[:2, 3], spot, atol=1e-3)
+    # Stop, consulted before each option, ends the planning at once.
+    asked = []
+
+    def stop() -> None:
+        asked.append(1)
+        raise TaskStopped("stopped")
+
+    with pytest.raises(TaskStopped):
+        plan_set_down(q, T, spot, held, scene, 0.03, VX300S, low=True, stop=stop)
+    assert len(asked) == 1
 
 
 def test_aside_spots_ring_the_bottle_nearest_first_and_nearest_the_base_first() -> None:

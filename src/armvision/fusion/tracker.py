@@ -29,6 +29,7 @@ base frame by the calibration, with the camera's noise model as covariance.
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -214,13 +215,19 @@ class _Track:
         self.radii: deque[float] = deque(maxlen=SIZE_WINDOW)
         self.heights: deque[float] = deque(maxlen=SIZE_WINDOW)
         self.box: tuple[float, float, float, float] | None = None
+        #: Medians of ``radii`` and ``heights``, kept with them: the fusion thread reads them
+        #: every cycle (statistics.median: a fraction of np.median's cost on 15 numbers).
+        self.radius: float | None = None
+        self.height: float | None = None
         self.add_size(m)
 
     def add_size(self, m: ObjectMeasurement) -> None:
         if m.radius is not None:
             self.radii.append(m.radius)
+            self.radius = float(statistics.median(self.radii))
         if m.height is not None:
             self.heights.append(m.height)
+            self.height = float(statistics.median(self.heights))
         self.box = m.box
 
     @property
@@ -232,7 +239,8 @@ class _Track:
         ``SIZE_TOLERANCE_M`` (0 while either is unknown)."""
         if m.radius is None or len(self.radii) < SIZE_KNOWN_AFTER:
             return 0.0
-        return max(abs(m.radius - float(np.median(self.radii))) - SIZE_TOLERANCE_M, 0.0) ** 2
+        assert self.radius is not None  # set with radii
+        return max(abs(m.radius - self.radius) - SIZE_TOLERANCE_M, 0.0) ** 2
 
     def state(self, t: float | None = None) -> TrackState:
         f = self.filter
@@ -253,8 +261,8 @@ class _Track:
             hits=self.hits,
             last_seen=self.last_seen,
             votes=tuple(sorted(self.votes.items())),
-            radius=float(np.median(self.radii)) if self.radii else None,
-            height=float(np.median(self.heights)) if self.heights else None,
+            radius=self.radius,
+            height=self.height,
             box=self.box,
         )
 

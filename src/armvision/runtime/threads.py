@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from armvision.camera.frames import RGBDFrame
+from armvision.realtime import share_interpreter_finely
 
 if TYPE_CHECKING:
     from armvision.runtime.system import System
@@ -38,6 +39,7 @@ class StageThreads:
     def start(self) -> None:
         """Start every stage; returns once the camera delivered a first frame (or gave up)."""
         system = self.system
+        share_interpreter_finely()
         ready = threading.Event()
         spawn: list[tuple[str, Callable[[], None]]] = [
             ("camera", lambda: self._camera(ready)),

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.config import Config
 from armvision.errors import SimulationError
 from armvision.geometry import inv_T, make_T, rot_z
+from armvision.realtime import share_interpreter_finely
 from armvision.robot.kinematics import VX300S
 from armvision.robot.tag_mount import tag_mount
 from armvision.sim import names
@@ -161,6 +162,7 @@ class SimWorld:
         self._stop = threading.Event()
         self._thread_error: BaseException | None = None
         if mode == "realtime":
+            share_interpreter_finely()
             self._thread = threading.Thread(
                 target=self._realtime_loop, name="sim-physics", daemon=True
             )

@@ -48,7 +48,10 @@ default the arm's 2 s, with ``position_priority``), wait for the move to end, re
 ``follow.lost_timeout_s`` (ok False, reason "target lost: ..."); a target never seen within
 that time after the start counts as lost too. Stop raises TaskStopped (the system halts the
 arm and reports the task stopped). A target is "seen" at the capture time of the frame it
-was detected in (tags) or its track's newest detection (bottles).
+was detected in (tags) or its track's newest detection (bottles), and "not seen for" a time
+when the frames its detector processed since cover that much camera time without it: a
+machine too busy to process every frame does not lose a target that is in view. With no frame
+processed at all for ``lost_timeout_s`` + :data:`NO_FRAMES_S` it is lost as well.
 """
 
 from __future__ import annotations
@@ -80,6 +83,9 @@ DIVERGENCE_RAD = 0.25
 RAMP_DOWN_MAX_S = 1.0
 #: Progress is reported this often (clock seconds).
 PROGRESS_EVERY_S = 1.0
+#: With no frame processed by the target's detector for ``follow.lost_timeout_s`` plus this
+#: long (seconds; the camera unplugged, the detector switched off), the target is lost.
+NO_FRAMES_S = 1.0
 
 Mode = Literal["servo", "blocking"]
 TargetKind = Literal["tag", "bottle"]
@@ -150,6 +156,11 @@ class _TagTarget:
     def last_seen(self) -> float | None:
         return self.estimator.last_time
 
+    @property
+    def last_looked(self) -> float | None:
+        """The time of the newest frame the tag stage processed."""
+        return self._frame_time
+
     def poll(self, state: SystemState) -> None:
         t = state.tags_time
         if t is None or (self._frame_time is not None and t <= self._frame_time):
@@ -180,6 +191,8 @@ class _TrackTarget:
     def __init__(self, track_id: int | None) -> None:
         self.track_id = track_id
         self.last_seen: float | None = None
+        #: The time of the newest frame the object stage processed.
+        self.last_looked: float | None = None
         self.measurements = 0
         self._p: Array | None = None
         self._v = np.zeros(3)
@@ -190,6 +203,8 @@ class _TrackTarget:
         return "a bottle" if self.track_id is None else f"bottle track {self.track_id}"
 
     def poll(self, state: SystemState) -> None:
+        if state.detections_frame is not None:
+            self.last_looked = float(state.detections_frame.timestamp)
         if self.track_id is None:
             bottles = state.bottles()
             if not bottles:
@@ -403,17 +418,28 @@ def _ended(
 
 
 def _lost_reason(source: Any, now: float, start: float, timeout: float) -> str | None:
-    """Why the target counts as lost at ``now``, or None if it does not."""
-    seen = source.last_seen
-    if seen is None:
-        if now - start > timeout:
+    """Why the target counts as lost at ``now``, or None if it does not.
+
+    Lost when the frames its detector processed after it was last seen (after the start, if it
+    never was) cover more than ``timeout`` of camera time without it: on a busy machine frames
+    come late and fewer, which is not the target going out of view. Lost too when the detector
+    processed no frame at all for ``timeout`` + NO_FRAMES_S (the camera or detector stopped).
+    """
+    seen, looked = source.last_seen, source.last_looked
+    since = start if seen is None else seen
+    if looked is not None and looked - since > timeout:
+        if seen is None:
             return (
                 f"target lost: {source.label} not seen in the first {timeout:.2f} s "
                 "(is it in view of the camera, and its detector on?)"
             )
-        return None
-    if now - seen > timeout:
         return f"target lost: {source.label} not seen for {now - seen:.2f} s"
+    newest = since if looked is None else max(since, looked)
+    if now - newest > timeout + NO_FRAMES_S:
+        return (
+            f"target lost: no frame processed for {now - newest:.2f} s while following "
+            f"{source.label} (is the camera running, and its detector on?)"
+        )
     return None
 
 

@@ -497,7 +497,7 @@ class _PlannedGrab(_Grab):
                     f"{100 * self.cfg.min_base_distance:.0f} cm: not safe to grasp"
                 )
                 continue
-            found = plan_grasps(bottle, scene, self.cfg, model, self.allow_top)
+            found = plan_grasps(bottle, scene, self.cfg, model, self.allow_top, self.ctx.check)
             if isinstance(found, GraspRefusal):
                 refusals.append(found.reason)
                 continue

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -418,10 +419,12 @@ def plan_grasps(
     cfg: GrabConfig,
     model: ArmModel,
     allow_top: bool = True,
+    stop: Callable[[], None] | None = None,
 ) -> list[GraspCandidate] | GraspRefusal:
     """Every free candidate for ``track``, best first; or why there is none. Grasps from
     above are tried when none from the side is free, if ``allow_top`` and
-    ``grab.top_grasp``."""
+    ``grab.top_grasp``. ``stop`` is called before each candidate is checked (a task passes
+    ``ctx.check``, so Stop ends a plan of seconds at once)."""
     bottle = BottleGeometry.of(track, cfg)
     check = Checker(scene, track.id, model)
     free: list[GraspCandidate] = []
@@ -443,6 +446,8 @@ def plan_grasps(
             for pitch in PITCHES_DEG
         ]
         for standoff, raise_share, pitch, ahead in options:
+            if stop is not None:
+                stop()
             hover_z = hover_height(bottle, scene, bottle.xy - (standoff + ahead) * u)
             grasp_z = bottle.grasp_z + raise_share * bottle.height
             try:

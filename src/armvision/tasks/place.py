@@ -44,7 +44,7 @@ Units: metres, radians; positions in the base frame. Stop halts the arm where it
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -375,6 +375,7 @@ def plan_set_down(
     finger_closed: float,
     model: ArmModel,
     low: bool = False,
+    stop: Callable[[], None] | None = None,
 ) -> SetDown | str:
     """The set-down at ``spot`` from the arm at ``q_now`` (pose ``T_now``, holding the bottle),
     or why not: straight up to the carry height, straight across while turning about the
@@ -386,7 +387,8 @@ def plan_set_down(
     to the carry height; the bottle slides across at the height it is held at (out of a
     cluster of bottles as tall as it, over which the arm cannot lift it), its own body checked
     against every body of the scene (:func:`held_body_clearance`, :data:`SLIDE_CLEARANCE_M`)
-    while it slides and is lowered."""
+    while it slides and is lowered. ``stop`` is called before each option is checked (Stop
+    ends a task planning here at once)."""
     R0 = T_now[:3, :3]
     p0 = T_now[:3, 3]
     carry_z = float(p0[2]) if low else max(held.carry_z, float(p0[2]))
@@ -423,6 +425,8 @@ def plan_set_down(
         held_start, _ = held_body_clearance(q_now[None, :], held, bodies, model)
         slide_needed = min(SLIDE_CLEARANCE_M, held_start - 0.002)
     for turn, during_lift in options:
+        if stop is not None:
+            stop()
         R = rot_z(turn) @ R0
         u = np.array([R[0, 0], R[1, 0], 0.0])
         u /= max(float(np.linalg.norm(u)), 1e-9)
@@ -542,7 +546,9 @@ class Placer:
         q_now = np.asarray(ctx.arm.get_joint_positions(), dtype=float)
         T_now = fk(q_now, ctx.arm.model)
         finger = float(ctx.arm.gripper.get_finger_position())
-        return plan_set_down(q_now, T_now, xy, self.held, scene, finger, ctx.arm.model, low)
+        return plan_set_down(
+            q_now, T_now, xy, self.held, scene, finger, ctx.arm.model, low, ctx.check
+        )
 
     def choose(
         self,
