@@ -4,14 +4,19 @@ OMPL's RRT-Connect (the ``ompl`` package), then timed within the joint speed lim
 :func:`joint_path` answers a list of configurations from start to goal whose joint-space
 lines are all at least the asked clearance from the scene (checked every
 :data:`~armvision.tasks.grasp_plan.LINE_STEP_RAD`), or None when the planner finds none in
-its time. :func:`path_times` gives each line's duration: the joint that moves most at
-:data:`~armvision.tasks.motion.SPEED_FRACTION` of its velocity limit, plus the arm's
-acceleration time, and at least :data:`~armvision.tasks.motion.SEGMENT_TIME_S`.
+its time. That time is the planning thread's own processor time (capped at
+:data:`WALL_FACTOR` times as much on the clock): on a machine busy with other threads (the
+realtime simulation's physics, camera and detectors on 2 cores) a budget on the clock left
+RRT-Connect a fraction of it and a free path went unfound. :func:`path_times` gives each
+line's duration: the joint that moves most at :data:`~armvision.tasks.motion.SPEED_FRACTION`
+of its velocity limit, plus the arm's acceleration time, and at least
+:data:`~armvision.tasks.motion.SEGMENT_TIME_S`.
 """
 
 from __future__ import annotations
 
 import itertools
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -28,6 +33,18 @@ Array = NDArray[np.float64]
 OMPL_RESOLUTION = 0.002
 #: Time spent shortening the found path (OMPL's path simplifier), seconds.
 SIMPLIFY_S = 0.3
+#: A planning budget of t seconds of processor time ends after WALL_FACTOR * t on the clock.
+WALL_FACTOR = 5.0
+
+
+def _budget(ob: Any, seconds: float) -> Any:
+    """An OMPL termination condition: ``seconds`` of this thread's processor time, or
+    WALL_FACTOR times as many on the clock, whichever comes first."""
+    cpu0, wall0 = time.thread_time(), time.monotonic()
+    wall = WALL_FACTOR * seconds
+    return ob.PlannerTerminationCondition(
+        lambda: time.thread_time() - cpu0 > seconds or time.monotonic() - wall0 > wall
+    )
 
 
 def path_free(path: list[Array], least: Callable[[Array], float], needed: float) -> bool:
@@ -98,10 +115,10 @@ def _rrt_connect(
     info = setup.getSpaceInformation()
     info.setStateValidityCheckingResolution(OMPL_RESOLUTION)
     setup.setPlanner(og.RRTConnect(info))
-    solved = setup.solve(float(time_s))
+    solved = setup.solve(_budget(ob, float(time_s)))
     if not solved or not setup.haveExactSolutionPath():
         return None
-    setup.simplifySolution(SIMPLIFY_S)
+    setup.simplifySolution(_budget(ob, SIMPLIFY_S))
     path = setup.getSolutionPath()
     out = [
         np.array([path.getState(k)[j] for j in range(dof)], dtype=float)
