@@ -146,3 +146,27 @@ def test_bad_arguments_raise_fusion_errors():
         loop.push_detections(0.0, [np.zeros(3)])
     with pytest.raises(FusionError, match="ObjectMeasurement"):
         loop.push_object_measurements(0.0, [np.zeros(3)])
+
+
+def test_an_object_at_the_fingers_is_not_fused_and_one_beside_them_is() -> None:
+    """Hand-worked: the gripper at home points along +x with its fingertips' point at
+    (0.536, 0, 0.427) and its pads from 0.498 to 0.566 m along x. A bottle (height 0.2 m)
+    whose axis is 4 cm ahead of the pads' tips, with the gripper at a third of its height
+    above its top less than 2 cm, is in the gripper; 6 cm to the side it is not; below the
+    gripper by more than its height plus 2 cm it is not."""
+    from armvision.fusion.loop import in_gripper
+    from armvision.fusion.tracker import ObjectMeasurement
+
+    T_home = fk(np.zeros(6))
+    np.testing.assert_allclose(T_home[:3, 3], [0.536494, 0.0, 0.42705], atol=1e-9)
+
+    def bottle(x: float, y: float, z_centre: float) -> ObjectMeasurement:
+        return ObjectMeasurement([x, y, z_centre], np.eye(3) * 1e-6, "bottle", height=0.2)
+
+    assert in_gripper(bottle(0.566 + 0.04, 0.0, 0.40), T_home)
+    assert in_gripper(bottle(0.52, 0.0, 0.40), T_home)  # between the pads
+    assert in_gripper(bottle(0.50, 0.049, 0.40), T_home)  # beside the pads
+    assert not in_gripper(bottle(0.566 + 0.06, 0.0, 0.40), T_home)
+    assert not in_gripper(bottle(0.52, 0.06, 0.40), T_home)
+    assert not in_gripper(bottle(0.52, 0.0, 0.40 - 0.1 - 0.03), T_home)  # top 3 cm below
+    assert not in_gripper(bottle(0.52, 0.0, 0.427 + 0.1 + 0.01), T_home)  # foot above

@@ -262,6 +262,31 @@ def test_measurement_from_detection_maps_the_camera_point_into_the_base_frame():
     assert m.label == "cup" and m.score == 0.7
 
 
+def test_an_unseen_track_stops_where_it_was_last_seen() -> None:
+    """A track moving at 0.1 m/s that stops being seen coasts at most 0.1 m/s x (COAST_TIME_S
+    + one frame): the sum of v dt a^k, a = e^(-dt/tau), is v dt / (1 - a) ~ v (tau + dt/2);
+    it does not go on at its last velocity until it is dropped."""
+    from armvision.fusion.tracker import COAST_TIME_S
+
+    tracker = MultiObjectTracker()
+    p = np.array([0.3, 0.0, 0.1])
+    for k in range(int(2 * FPS)):
+        tracker.update(
+            k / FPS,
+            [ObjectMeasurement(p + np.array([0.1 * k / FPS, 0, 0]), np.eye(3) * 1e-6, "bottle")],
+        )
+    last = (int(2 * FPS) - 1) / FPS
+    seen = tracker.tracks()[0]
+    assert seen.v_base[0] == pytest.approx(0.1, abs=0.01)
+    for k in range(int(2 * FPS), int(2.9 * FPS)):
+        tracks = tracker.update(k / FPS, [])
+    coasted = tracks[0].p_base[0] - seen.p_base[0]
+    bound = 0.1 * (COAST_TIME_S + 1 / FPS)
+    assert 0.0 < coasted <= bound
+    assert tracks[0].v_base[0] < 0.1 * math.exp(-(0.85 - 1 / FPS) / COAST_TIME_S) * 1.5
+    assert tracks[0].p_base[0] - (0.3 + 0.1 * last) < bound
+
+
 def test_bad_input_raises_fusion_errors():
     tracker = MultiObjectTracker()
     with pytest.raises(FusionError, match="ObjectMeasurement"):
