@@ -150,10 +150,10 @@ def test_bad_arguments_raise_fusion_errors():
 
 def test_an_object_at_the_fingers_is_not_fused_and_one_beside_them_is() -> None:
     """Hand-worked: the gripper at home points along +x with its fingertips' point at
-    (0.536, 0, 0.427) and its pads from 0.498 to 0.566 m along x. A bottle (height 0.2 m)
-    whose axis is 4 cm ahead of the pads' tips, with the gripper at a third of its height
-    above its top less than 2 cm, is in the gripper; 6 cm to the side it is not; below the
-    gripper by more than its height plus 2 cm it is not."""
+    (0.536, 0, 0.427) and its pads from 0.498 to 0.566 m along x. A bottle 0.2 m tall whose
+    top (0.50 m) is above the gripper's point is in the gripper when its axis is within 5 cm
+    of the pads (4 cm ahead of their tips, between them, 4.9 cm beside them), not at 6 cm;
+    nor when its top is 3 cm below the gripper's point or its foot above it."""
     from armvision.fusion.loop import in_gripper
     from armvision.fusion.tracker import ObjectMeasurement
 

@@ -59,6 +59,7 @@ from armvision.fusion.tracker import (
     TrackState,
     measurement_from_detection,
 )
+from armvision.perception.selfmask import segment_distances
 from armvision.robot.kinematics import fk
 
 log = logging.getLogger("armvision.fusion")
@@ -90,10 +91,8 @@ def in_gripper(m: ObjectMeasurement, T_base_ee: np.ndarray) -> bool:
     was last seen whole (the grab's own checks say whether the gripper holds it).
     """
     x_ee, p_ee = T_base_ee[:3, 0], T_base_ee[:3, 3]
-    a, b = ((p_ee + s * x_ee)[:2] for s in FINGER_SPAN_M)
-    ab = b - a
-    u = float(np.clip(np.dot(m.p_base[:2] - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0, 1))
-    across = float(np.linalg.norm(m.p_base[:2] - (a + u * ab)))
+    a, b = ((p_ee + s * x_ee)[None, :2] for s in FINGER_SPAN_M)  # the pads, seen from above
+    across = float(segment_distances(m.p_base[None, :2], a, b)[0, 0])
     half = 0.5 * m.height if m.height is not None else UNKNOWN_HALF_HEIGHT_M
     below_top = m.p_base[2] + half + GRIPPER_COVER_MARGIN_M - p_ee[2]
     above_foot = p_ee[2] - (m.p_base[2] - half)

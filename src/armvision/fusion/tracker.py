@@ -334,9 +334,8 @@ class MultiObjectTracker:
         if self.t is not None and t < self.t:
             self.dropped_frames += 1  # one camera delivers in order; an old frame is stale
             return self.confirmed_tracks()
-        steps = [
-            t - (track.filter.t if track.filter.t is not None else t) for track in self._tracks
-        ]
+        # Every track was predicted to (or started at) the last frame's time.
+        dt = 0.0 if self.t is None else t - self.t
         self.t = t
         self.frames += 1
         for track in self._tracks:
@@ -368,8 +367,7 @@ class MultiObjectTracker:
         for i, track in enumerate(self._tracks):
             if i not in seen:
                 track.history.append(False)
-                if i < len(steps):
-                    track.coast(steps[i])
+                track.coast(dt)
             if not track.confirmed and sum(track.history) >= cfg.confirm_hits:
                 track.confirmed = True
             hopeless = (
