@@ -30,10 +30,9 @@ from armvision.sim.scene import (
     random_camera_pose,
 )
 from armvision.tasks.analyze import AnalyzeResult
-from armvision.tasks.carry import Held
+from armvision.tasks.carry import Held, held_body_clearance
 from armvision.tasks.grab import grab
 from armvision.tasks.place import (
-    held_body_clearance,
     place,
     plan_set_down,
     spot_refusal,

@@ -83,7 +83,7 @@ from armvision.perception.detection import Detection
 from armvision.perception.liquid import ContainerGeometry, LiquidLevel
 from armvision.runtime.context import TaskContext
 from armvision.runtime.state import ASSOCIATION_M, LiquidEstimate, SystemState, average_levels
-from armvision.tasks.carry import Abort, Carrier, Held
+from armvision.tasks.carry import Abort, Carrier, Held, grasp_pitch_deg
 from armvision.tasks.colour import colour_name
 from armvision.tasks.grab import GrabResult, grab, holding
 from armvision.tasks.spots import Box, Obstacle, Spot, bottle_box, presentation_spot
@@ -468,37 +468,58 @@ class _Analyze:
         held; the grasp's reason if it failed, else None."""
         ctx, carrier, track = self.ctx, self.carrier, self.track
         assert track is not None
+        # The scene as the camera saw it before the arm came: a carry below the height above
+        # everything is checked against it (Carrier.lower_carry).
+        carrier.scene, carrier.held_track = ctx.state().planning_scene, track.id
         grabbed: GrabResult = grab(ctx, track_id=track.id, allow_top=False)  # carried level
         if not grabbed.ok:
             self.pick_untouched = grabbed.untouched
             return grabbed.reason
         self.picked = True
         carrier.where = "held by the gripper"
+        carrier.T_base_ee_last = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
+        carrier.grasp_yaw = float(
+            np.arctan2(carrier.T_base_ee_last[1, 0], carrier.T_base_ee_last[0, 0])
+        )
         carrier.held = Held.from_grab(
-            grabbed, carrier.finger(), track, [ob.top for ob in obstacles], self.grab_cfg
+            grabbed,
+            carrier.finger(),
+            track,
+            [ob.top for ob in obstacles],
+            self.grab_cfg,
+            grasp_pitch_deg(carrier.T_base_ee_last),
         )
         self.position = grabbed.target
-        carrier.T_base_ee_last = np.asarray(ctx.arm.get_ee_pose(), dtype=float)
         return None
 
     def choose_spot(self, obstacles: list[Obstacle]) -> Spot | None:
         """The :func:`~armvision.tasks.spots.presentation_spot` for the held bottle, seen with
-        the camera pose the system works with now."""
+        the camera pose the system works with now and reached on the wrist branch the grasp
+        left the arm on; one whose carry height above everything is out of reach only if no
+        other is (:meth:`~armvision.tasks.carry.Carrier.put_down` then carries it lower)."""
         ctx, held = self.ctx, self.carrier.held
         assert held is not None
-        return presentation_spot(
-            ctx.state().T_base_cam,
-            ctx.camera.intrinsics,
-            held.radius,
-            held.height,
-            held.table_z,
-            held.grasp_offset,
-            obstacles,
-            self.cfg.present_distance,
-            self.grab_cfg.standoff,
-            ctx.arm.model,
-            held.carry_z,
-        )
+        q_now = np.asarray(ctx.arm.get_joint_positions(), dtype=float)
+        lowest = held.grasp_z + self.grab_cfg.lift
+        for carry_z in dict.fromkeys((held.carry_z, min(held.carry_z, lowest))):
+            spot = presentation_spot(
+                ctx.state().T_base_cam,
+                ctx.camera.intrinsics,
+                held.radius,
+                held.height,
+                held.table_z,
+                held.grasp_offset,
+                obstacles,
+                self.cfg.present_distance,
+                self.grab_cfg.standoff,
+                ctx.arm.model,
+                carry_z,
+                held.pitch_deg,
+                q_now,
+            )
+            if spot is not None:
+                return spot
+        return None
 
     def no_spot(self, poor: str, in_place: _Samples) -> AnalyzeResult:
         """Nowhere to present the held bottle (or no time left): put it back, say why."""
@@ -510,7 +531,7 @@ class _Analyze:
             else "there is no free spot on the table where the arm can stand the bottle "
             "fully in the camera's view"
         )
-        self.carrier.put_down(held.home_xy, "back in its place")
+        self.carrier.put_down(held.home_xy, "back in its place", self.carrier.grasp_yaw)
         self.carrier.go_safe()
         return self.result(
             False,
@@ -541,7 +562,7 @@ class _Analyze:
 
         ctx.progress(0.75, "putting the bottle back")
         carrier.pick_up(spot_xy)
-        carrier.put_down(held.home_xy, "back in its place")
+        carrier.put_down(held.home_xy, "back in its place", carrier.grasp_yaw)
         carrier.go_safe()
         return samples
 

@@ -1,22 +1,26 @@
-"""Carrying a picked bottle for analyze: lift, carry level, stand it down, back off, take it up.
+"""Carrying a picked bottle for analyze: lift, carry upright, stand it down, back off, take it up.
 
 :class:`Held` is the picked bottle (its radius from the closed fingers, its height, the table,
-the grasp and carry heights, where it came from). :class:`Carrier` moves the arm with it: every
-move is a straight line in short segments (:meth:`Carrier.straight`), each point reached level
-with the wrist unflipped (a held bottle stays upright; an empty gripper may pitch down up to
-:data:`EMPTY_MAX_PITCH_DEG`); :meth:`Carrier.put_down` carries the bottle above everything else
-on the table to a spot, stands it there and releases it, :meth:`Carrier.retreat` backs the
-gripper off behind it and up out of the camera's view, :meth:`Carrier.pick_up` grasps it again
-there, :meth:`Carrier.go_safe` goes to the grasp's safe start pose. A move that cannot be made
-raises :class:`Abort` with the reason.
+the grasp and carry heights, the grasp's pitch, where it came from). :class:`Carrier` moves the
+arm with it: every move is a straight line in short segments (:meth:`Carrier.straight`), each
+point reached with the wrist unflipped; a held bottle is moved at the pitch it was grasped at
+(level, or pitched down where the grasp near the base had to be: the bottle stood upright
+between the fingers then, so it stays upright), an empty gripper at that pitch, level, or
+pitched down up to :data:`EMPTY_MAX_PITCH_DEG`. :meth:`Carrier.put_down` carries the bottle
+above everything else on the table (where the arm cannot lift it that high, above what stands
+in its way: :meth:`Carrier.lower_carry`) to a spot, stands it there and releases it,
+:meth:`Carrier.retreat` backs the gripper off behind it and up out of the camera's view,
+:meth:`Carrier.pick_up` grasps it again there, :meth:`Carrier.go_safe` goes to the grasp's safe
+start pose. A move that cannot be made raises :class:`Abort` with the reason.
 
 Units: metres, seconds, radians unless named ``_deg``; positions in the base frame.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,10 +29,13 @@ from numpy.typing import ArrayLike, NDArray
 from armvision.config import GrabConfig
 from armvision.fusion.tracker import TrackState
 from armvision.geometry import make_T
-from armvision.robot.kinematics import ik
+from armvision.robot.kinematics import ArmModel, fk, ik
 from armvision.robot.vx300s import FINGER_PAD_INSET
 from armvision.runtime.context import TaskContext
+from armvision.runtime.planning_scene import Body, PlanningScene
+from armvision.tasks.collision import signed_gap
 from armvision.tasks.grab import HOVER_CLEARANCE_M, GrabResult, holding, safe_start_pose
+from armvision.tasks.grasp_plan import Checker, joint_line
 from armvision.tasks.motion import SEGMENT_TIME_S, level_pose, motion_seed, paced_time
 
 Array = NDArray[np.float64]
@@ -47,11 +54,21 @@ CARRY_SPEED_M_S = 0.15
 SEGMENT_M = 0.06
 #: With the gripper empty, a point the arm cannot reach level is reached pitched down up to
 #: this (near the base a level gripper cannot reach low points), degrees. A held bottle is
-#: always carried level, so it stays upright.
+#: always carried at the grasp's pitch, so it stays upright.
 EMPTY_MAX_PITCH_DEG = 90
 #: A bottle that cannot be carried is stood back where it was taken if the gripper is still
 #: this near above that spot, m.
 STAND_BACK_M = 0.01
+#: Scene bodies and cells whose centre is this near the gripper (beyond the held bottle's
+#: radius) are the held bottle itself, as the camera sees it in the fingers, m.
+HELD_MARGIN_M = 0.04
+#: Where the carry height above everything on the table is out of reach, lower ones are tried
+#: down to the lift's height in steps of this, m (:meth:`Carrier.put_down`) ...
+LOWER_CARRY_STEP_M = 0.02
+#: ... each taken only if the arm keeps this clearance to the planning scene ...
+LOWER_ARM_CLEARANCE_M = 0.005
+#: ... and the held bottle's body this clearance to every other body, m.
+LOWER_HELD_CLEARANCE_M = 0.01
 
 
 def _cannot_reach(p: ArrayLike, yaw: float) -> str:
@@ -79,6 +96,14 @@ class Abort(Exception):  # noqa: N818 - control flow inside the analyze task
     """Ends the analysis with a reason (becomes AnalyzeResult.ok = False)."""
 
 
+def grasp_pitch_deg(T_base_ee: ArrayLike) -> int:
+    """How far down a gripper pose is pitched about its own y axis, degrees, to the nearest
+    5 (both grasp planners pitch in 5 degree steps; the reading's error is far smaller)."""
+    R = np.asarray(T_base_ee, dtype=float)[:3, :3]
+    pitch = math.degrees(math.asin(float(np.clip(-R[2, 0], -1.0, 1.0))))
+    return 5 * round(pitch / 5)
+
+
 def _yaw(T_base_x: Array) -> float:
     """Heading of a pose's x axis in the base's xy plane, rad."""
     return math.atan2(T_base_x[1, 0], T_base_x[0, 0])
@@ -89,8 +114,10 @@ class Held:
     """The picked bottle: its geometry, where it came from and how it is carried, metres;
     ``ahead``: its axis stands this far ahead of the point between the fingertips, along the
     gripper's heading (a shallow grasp; 0 for a full-depth one); ``from_above``: held by the
-    cap, the gripper pointing down (:class:`Carrier`'s level moves are not for such a bottle;
-    the place task's are)."""
+    cap, the gripper pointing down (:class:`Carrier`'s moves are not for such a bottle; the
+    place task's are); ``pitch_deg``: how far down the gripper was pitched about its own y
+    axis (the fingers' closing axis) when it closed on the standing bottle, degrees
+    (:func:`grasp_pitch_deg`)."""
 
     radius: float
     height: float
@@ -100,6 +127,7 @@ class Held:
     home_xy: Array
     ahead: float = 0.0
     from_above: bool = False
+    pitch_deg: int = 0
 
     @property
     def grasp_z(self) -> float:
@@ -112,6 +140,7 @@ class Held:
         track: TrackState,
         obstacle_tops: Sequence[float],
         gcfg: GrabConfig,
+        pitch_deg: int = 0,
     ) -> Held:
         """The radius from the closed fingers (the track's if implausible, or held from above:
         the fingers closed on the cap), height, table and grasp height from the grasp, the
@@ -134,6 +163,7 @@ class Held:
             np.array(grabbed.target[:2], float),
             grabbed.ahead,
             grabbed.from_above,
+            pitch_deg,
         )
 
     def grip_xy(self, xy: ArrayLike, yaw: float) -> Array:
@@ -141,6 +171,47 @@ class Held:
         gripper heads ``yaw``."""
         heading = np.array([math.cos(yaw), math.sin(yaw)])
         return np.asarray(xy, dtype=float)[:2] - self.ahead * heading
+
+
+def held_obstacles(
+    scene: PlanningScene, held_track: int | None, grip_xy: Array | None, held_radius: float
+) -> list[Body]:
+    """The scene's bodies and cells but the held bottle: its track, and whatever stands
+    within its radius plus :data:`HELD_MARGIN_M` of the fingers (``grip_xy``)."""
+    out = []
+    for b in scene.obstacles(held_track):
+        if grip_xy is not None and math.dist(b.xy, grip_xy) < held_radius + HELD_MARGIN_M:
+            continue
+        out.append(b)
+    return out
+
+
+def held_body_clearance(
+    qs: Sequence[Array] | Array, held: Held, bodies: Sequence[Body], model: ArmModel
+) -> tuple[float, str]:
+    """Least distance over the configurations ``qs`` of the held bottle (a vertical cylinder
+    of its radius and height, its axis ``held.ahead`` ahead of the point between the
+    fingertips along the gripper's heading, its bottom ``held.grasp_offset`` below that
+    point) to ``bodies`` (vertical cylinders), and which body it is to. The distance of two
+    vertical cylinders is :func:`~armvision.tasks.collision.signed_gap` of their gaps."""
+    if not bodies:
+        return math.inf, "nothing"
+    T = fk(np.asarray(qs, dtype=float), model).reshape(-1, 4, 4)
+    heading = T[:, :2, 0]
+    norm = np.linalg.norm(heading, axis=1, keepdims=True)
+    heading = np.where(norm > 1e-6, heading / np.maximum(norm, 1e-12), 0.0)
+    xy = T[:, :2, 3] + held.ahead * heading
+    bottom = T[:, 2, 3] - held.grasp_offset
+    top = bottom + held.height
+    b_xy = np.array([b.xy for b in bodies], dtype=float).reshape(-1, 2)
+    b_r = np.array([b.radius for b in bodies], dtype=float)
+    b_bottom = np.array([b.bottom for b in bodies], dtype=float)
+    b_top = np.array([b.top for b in bodies], dtype=float)
+    d_xy = np.linalg.norm(xy[:, None, :] - b_xy[None], axis=-1) - held.radius - b_r
+    d_z = np.maximum(b_bottom[None] - top[:, None], bottom[:, None] - b_top[None])
+    d = signed_gap(d_xy, d_z)
+    i, k = np.unravel_index(int(np.argmin(d)), d.shape)
+    return float(d[i, k]), bodies[int(k)].describe()
 
 
 class Carrier:
@@ -157,15 +228,32 @@ class Carrier:
         self.T_base_ee_last: Array | None = None
         self.where = "in its place"
         self.taken_xy: Array | None = None  # where the held bottle was last picked up
+        # The planning scene from before the pick (its tracks not hidden by the arm) and the
+        # held bottle's track in it: a carry below the height above everything is checked
+        # against them (None: no lower carry is tried).
+        self.scene: PlanningScene | None = None
+        self.held_track: int | None = None
+        self.grasp_yaw: float | None = None  # the gripper's heading when it took the bottle
 
     # ------------------------------------------------------------ one move
 
-    def pose(self, p: ArrayLike, yaw: float, max_pitch_deg: int = 0) -> tuple[Array, Array]:
-        """(T_base_ee, q): the gripper at ``p`` facing ``yaw``, level if the arm reaches it so
-        near the last commanded pose (wrist unflipped), else pitched down in 5 degree steps up
-        to ``max_pitch_deg``; Abort if neither."""
+    def held_pitches(self) -> tuple[int, ...]:
+        """The pitch a held bottle is moved at: the grasp's (it stood upright then)."""
+        return (0 if self.held is None else self.held.pitch_deg,)
+
+    def empty_pitches(self) -> tuple[int, ...]:
+        """The pitches the empty gripper is moved at, in order of preference: the grasp's (no
+        turn of the fingers next to the bottle), level, then pitched down in 5 degree steps
+        up to :data:`EMPTY_MAX_PITCH_DEG`."""
+        return tuple(dict.fromkeys((*self.held_pitches(), *range(0, EMPTY_MAX_PITCH_DEG + 1, 5))))
+
+    def pose(self, p: ArrayLike, yaw: float, pitches: Sequence[int]) -> tuple[Array, Array]:
+        """(T_base_ee, q): the gripper at ``p`` facing ``yaw`` at the first of ``pitches``
+        (degrees down) the arm reaches near the last commanded pose (wrist unflipped); Abort
+        if none."""
         arm = self.ctx.arm
-        found = level_pose(p, yaw, motion_seed(arm, self.T_base_ee_last), arm.model, max_pitch_deg)
+        seed = motion_seed(arm, self.T_base_ee_last)
+        found = level_pose(p, yaw, seed, arm.model, pitches=pitches)
         if found is not None:
             return found
         raise Abort(_cannot_reach(p, yaw))
@@ -181,7 +269,7 @@ class Carrier:
         self.T_base_ee_last = T_base_ee
 
     def straight(
-        self, what: str, p_goal: ArrayLike, yaw_goal: float, max_pitch_deg: int = 0
+        self, what: str, p_goal: ArrayLike, yaw_goal: float, pitches: Sequence[int]
     ) -> None:
         """From the last commanded pose straight to ``p_goal`` in segments of at most
         :data:`SEGMENT_M` at :data:`CARRY_SPEED_M_S`, the yaw turning evenly to ``yaw_goal``,
@@ -190,11 +278,11 @@ class Carrier:
         assert self.T_base_ee_last is not None
         p_from = self.T_base_ee_last[:3, 3].copy()
         for p, yaw, length in _segments(p_from, _yaw(self.T_base_ee_last), p_goal, yaw_goal):
-            T, q = self.pose(p, yaw, max_pitch_deg)
+            T, q = self.pose(p, yaw, pitches)
             self.move(what, T, q, max(SEGMENT_TIME_S, length / CARRY_SPEED_M_S))
 
     def plan_legs(
-        self, legs: Sequence[tuple[ArrayLike, float, int]]
+        self, legs: Sequence[tuple[ArrayLike, float, Sequence[int]]]
     ) -> list[list[tuple[Array, Array, float]]] | str:
         """The straight moves ``legs`` ((goal, yaw, max pitch) each, from the last commanded
         pose, segmented as :meth:`straight` does): per leg its points (pose, joints, segment
@@ -206,10 +294,10 @@ class Carrier:
         seed = motion_seed(self.ctx.arm, self.T_base_ee_last)
         p_from, yaw_from = self.T_base_ee_last[:3, 3].copy(), _yaw(self.T_base_ee_last)
         planned: list[list[tuple[Array, Array, float]]] = []
-        for p_goal, yaw_goal, max_pitch_deg in legs:
+        for p_goal, yaw_goal, pitches in legs:
             leg = []
             for p, yaw, length in _segments(p_from, yaw_from, p_goal, yaw_goal):
-                found = level_pose(p, yaw, seed, model, max_pitch_deg)
+                found = level_pose(p, yaw, seed, model, pitches=pitches)
                 if found is None:
                     return _cannot_reach(p, yaw)
                 seed = found[1]
@@ -228,27 +316,39 @@ class Carrier:
 
     # ------------------------------------------------------------ carrying steps
 
-    def put_down(self, xy: Array, where: str) -> None:
+    def put_down(self, xy: Array, where: str, yaw: float | None = None) -> None:
         """Carry the held bottle at the carry height to above ``xy``, stand it there, release
         it and retreat as :meth:`retreat` does; every point of these moves is planned before
-        the first (Abort, nothing moved, if one cannot be reached)."""
+        the first (Abort, nothing moved, if one cannot be reached). ``yaw``: the gripper
+        faces that way at ``xy`` and backs off along its own axis (putting the bottle back
+        where it was grasped: the grasp's heading, whose way in was clear); default: facing
+        ``xy`` from the base, backing off toward the base."""
         held = self.held
         assert held is not None and self.T_base_ee_last is not None
-        yaw = math.atan2(xy[1], xy[0])
+        if yaw is None:
+            yaw, back = math.atan2(xy[1], xy[0]), self.backoff_point(xy)
+        else:
+            heading = np.array([math.cos(yaw), math.sin(yaw)])
+            back = np.asarray(xy, dtype=float) - (held.radius + BACKOFF_MARGIN_M) * heading
         p = self.T_base_ee_last[:3, 3]
         g = held.grip_xy(xy, yaw)
-        back, top = self.backoff_point(xy), held.table_z + held.height + HOVER_CLEARANCE_M
-        plan = self.plan_legs(
-            [
-                ([p[0], p[1], held.carry_z], _yaw(self.T_base_ee_last), 0),
-                ([g[0], g[1], held.carry_z], yaw, 0),
-                ([g[0], g[1], held.grasp_z + RELEASE_HEIGHT_M], yaw, 0),
-                ([back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG),
-                ([back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG),
+        top = held.table_z + held.height + HOVER_CLEARANCE_M
+        yaw_now = _yaw(self.T_base_ee_last)
+
+        full, empty = self.held_pitches(), self.empty_pitches()
+
+        def legs(carry_z: float) -> list[tuple[ArrayLike, float, Sequence[int]]]:
+            return [
+                ([p[0], p[1], carry_z], yaw_now, full),
+                ([g[0], g[1], carry_z], yaw, full),
+                ([g[0], g[1], held.grasp_z + RELEASE_HEIGHT_M], yaw, full),
+                ([back[0], back[1], held.grasp_z], yaw, empty),
+                ([back[0], back[1], top], yaw, empty),
             ]
-        )
+
+        plan = self.plan_legs(legs(held.carry_z))
         if isinstance(plan, str):
-            raise Abort(plan)
+            plan = self.lower_carry(legs, plan)
         lift, carry, lower, back_off, rise = plan
         self.run_leg("lift for carrying", lift)
         self.run_leg("carry", carry)
@@ -257,6 +357,65 @@ class Carrier:
         self.where = where
         self.run_leg("back off", back_off)
         self.run_leg("rise", rise)
+
+    def lower_carry(
+        self,
+        legs: Callable[[float], list[tuple[ArrayLike, float, Sequence[int]]]],
+        why: str,
+    ) -> list[list[tuple[Array, Array, float]]]:
+        """The carry above everything (``why``: the point of it the arm cannot reach) planned
+        lower instead: the highest of the heights :data:`LOWER_CARRY_STEP_M` apart down to
+        the lift's whose legs (``legs(height)``) the arm reaches and whose moves keep the arm
+        :data:`LOWER_ARM_CLEARANCE_M` from the planning scene (the held bottle left out; or,
+        with a neighbour swollen while the arm hid it, no nearer than at the start) and the
+        held bottle :data:`LOWER_HELD_CLEARANCE_M` from every other body (near a shelf of the
+        arm's reach, a bottle held level is only carried over what stands in its way, not
+        over the tallest thing on the table). Abort with ``why`` if none."""
+        held, scene = self.held, self.scene
+        assert held is not None and self.T_base_ee_last is not None
+        if scene is None:
+            raise Abort(why)
+        lowest = held.grasp_z + self.grab_cfg.lift
+        if held.carry_z - lowest < LOWER_CARRY_STEP_M:
+            raise Abort(why)
+        model = self.ctx.arm.model
+        grip = self.T_base_ee_last[:2, 3]
+        obstacles = held_obstacles(scene, self.held_track, grip, held.radius)
+        bodies = [b for b in obstacles if b.track_id is not None]
+        cells = tuple(b for b in obstacles if b.track_id is None)
+        check = Checker(PlanningScene(scene.table_z, tuple(bodies), cells, scene.arm), None, model)
+        q_now = np.asarray(self.ctx.arm.get_joint_positions(), dtype=float)
+        closed, opened = self.finger(), model.finger_limits[1]
+        start, _ = check.least(q_now[None, :], closed)
+        arm_needed = min(LOWER_ARM_CLEARANCE_M, start - 0.002)
+        held_start, _ = held_body_clearance(q_now[None, :], held, bodies, model)
+        held_needed = min(LOWER_HELD_CLEARANCE_M, held_start - 0.002)
+        blocked = why  # no lower carry the arm reaches: the first reason stands
+        for carry_z in np.arange(
+            held.carry_z - LOWER_CARRY_STEP_M, lowest - 1e-9, -LOWER_CARRY_STEP_M
+        ):
+            plan = self.plan_legs(legs(float(carry_z)))
+            if isinstance(plan, str):
+                continue
+            moves = [q_now] + [q for leg in plan for _, q, _ in leg]
+            lines = [joint_line(a, b) for a, b in itertools.pairwise(moves)]
+            n_held = sum(len(leg) for leg in plan[:3])  # lift, carry, lower: closed
+            held_qs = np.concatenate(lines[:n_held])
+            empty_qs = np.concatenate(lines[n_held:])
+            for what, clearance, needed in (
+                ("the arm", check.least(held_qs, closed), arm_needed),
+                ("the open gripper", check.least(empty_qs, opened), arm_needed),
+                ("the bottle", held_body_clearance(held_qs, held, bodies, model), held_needed),
+            ):
+                if clearance[0] < needed:
+                    blocked = (
+                        f"{why}; carried lower, at {carry_z:.3f} m, {what} would come within "
+                        f"{1000 * clearance[0]:.0f} mm of {clearance[1]}"
+                    )
+                    break
+            else:
+                return plan
+        raise Abort(blocked)
 
     def stand_back(self) -> bool:
         """After a move that could not be made with the bottle held, the gripper still above
@@ -307,9 +466,10 @@ class Carrier:
         held = self.held
         assert held is not None
         yaw, back = math.atan2(xy[1], xy[0]), self.backoff_point(xy)
-        self.straight("back off", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        empty = self.empty_pitches()
+        self.straight("back off", [back[0], back[1], held.grasp_z], yaw, empty)
         top = held.table_z + held.height + HOVER_CLEARANCE_M
-        self.straight("rise", [back[0], back[1], top], yaw, EMPTY_MAX_PITCH_DEG)
+        self.straight("rise", [back[0], back[1], top], yaw, empty)
 
     def pick_up(self, xy: Array) -> None:
         """Grasp the bottle standing where this task released it (retreat, reversed)."""
@@ -317,10 +477,11 @@ class Carrier:
         assert held is not None
         yaw, back = math.atan2(xy[1], xy[0]), self.backoff_point(xy)
         self.straight(
-            "down behind the bottle", [back[0], back[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG
+            "down behind the bottle", [back[0], back[1], held.grasp_z], yaw, self.empty_pitches()
         )
         g = held.grip_xy(xy, yaw)
-        self.straight("approach", [g[0], g[1], held.grasp_z], yaw, EMPTY_MAX_PITCH_DEG)
+        # At the first grasp's pitch: the bottle is put back where that grasp took it, at it.
+        self.straight("approach", [g[0], g[1], held.grasp_z], yaw, self.held_pitches())
         self.ctx.close_gripper()
         if not holding(self.ctx.arm):
             self.ctx.open_gripper()

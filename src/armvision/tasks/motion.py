@@ -8,6 +8,7 @@ wrist unflipped and as level as the arm allows, and no joint faster than a share
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -43,14 +44,28 @@ def motion_seed(arm: Arm, T_base_ee_last: Array | None) -> Array:
 
 
 def level_pose(
-    p: ArrayLike, yaw: float, seed: Array, model: ArmModel, max_pitch_deg: int = 90
+    p: ArrayLike,
+    yaw: float,
+    seed: Array,
+    model: ArmModel,
+    max_pitch_deg: int = 90,
+    pitches: Sequence[int] | None = None,
 ) -> tuple[Array, Array] | None:
     """(T_base_ee, q): the gripper at ``p`` facing ``yaw``, level if the arm reaches it so,
-    else pitched down (about its own y axis) in 5 degree steps up to ``max_pitch_deg``, wrist
-    unflipped and within :data:`MAX_JOINT_STEP_RAD` of ``seed``; None if no such pose."""
-    for pitch_deg in range(0, max_pitch_deg + 1, 5):
+    else pitched down (about its own y axis) in 5 degree steps up to ``max_pitch_deg`` (or at
+    the first of ``pitches``, degrees, it reaches), within :data:`MAX_JOINT_STEP_RAD` of
+    ``seed`` and with the wrist unflipped (:func:`unflipped_ik`), or, from a seed whose wrist
+    is flipped (a collision-aware grasp may reach in with the forearm rolled), on the seed's
+    own branch; None if no such pose."""
+    flipped = abs(seed[3]) >= math.pi / 2 or abs(seed[5]) >= math.pi / 2
+    for pitch_deg in range(0, max_pitch_deg + 1, 5) if pitches is None else pitches:
         T = make_T(rpy_to_R(0.0, math.radians(pitch_deg), yaw), p)
-        q = unflipped_ik(T, seed, model)
+        q: Array | None
+        if flipped:
+            q, ok = ik(T, seed, model)
+            q = q if ok else None
+        else:
+            q = unflipped_ik(T, seed, model)
         if q is not None and np.max(np.abs(q - seed)) < MAX_JOINT_STEP_RAD:
             return T, q
     return None

@@ -66,8 +66,9 @@ from armvision.tasks.carry import (
     Abort,
     Carrier,
     Held,
+    held_body_clearance,
+    held_obstacles,
 )
-from armvision.tasks.collision import signed_gap
 from armvision.tasks.grab import (
     GRASP_MARGIN_M,
     HOVER_CLEARANCE_M,
@@ -97,9 +98,6 @@ TABLE_RADIUS_M = 0.7
 ZONE_STEP_M = 0.02
 #: After the release, the bottle's new track is looked for this far from the spot, m.
 FIND_M = 0.08
-#: Scene bodies and cells whose centre is this near the gripper (beyond the held bottle's
-#: radius) are the held bottle itself, as the camera sees it in the fingers, m.
-HELD_MARGIN_M = 0.04
 #: The back-off strip: half as wide as the open gripper's fingers, m.
 FINGER_HALF_WIDTH_M = 0.05
 
@@ -155,19 +153,6 @@ def zone_rect(config: Config, name: str) -> tuple[float, float, float, float]:
         known = ", ".join(sorted(zones)) or "none"
         raise PlaceError(f"no zone {name!r} in place.zones (zones: {known})")
     return zones[name]
-
-
-def held_obstacles(
-    scene: PlanningScene, held_track: int | None, grip_xy: Array | None, held_radius: float
-) -> list[Body]:
-    """The scene's bodies and cells but the held bottle: its track, and whatever stands
-    within its radius plus :data:`HELD_MARGIN_M` of the fingers (``grip_xy``)."""
-    out = []
-    for b in scene.obstacles(held_track):
-        if grip_xy is not None and math.dist(b.xy, grip_xy) < held_radius + HELD_MARGIN_M:
-            continue
-        out.append(b)
-    return out
 
 
 def _reach_poses(xy: Array, held: Held) -> list[tuple[Array, float, int]]:
@@ -286,34 +271,6 @@ SET_DOWN_CLEARANCE_M = 0.005
 #: keeps this clearance to every other body while it slides, or (bottles 1 cm apart) comes
 #: no nearer than 2 mm closer than where it was taken, m.
 SLIDE_CLEARANCE_M = 0.01
-
-
-def held_body_clearance(
-    qs: Sequence[Array] | Array, held: Held, bodies: Sequence[Body], model: ArmModel
-) -> tuple[float, str]:
-    """Least distance over the configurations ``qs`` of the held bottle (a vertical cylinder
-    of its radius and height, its axis ``held.ahead`` ahead of the point between the
-    fingertips along the gripper's heading, its bottom ``held.grasp_offset`` below that
-    point) to ``bodies`` (vertical cylinders), and which body it is to. The distance of two
-    vertical cylinders is :func:`~armvision.tasks.collision.signed_gap` of their gaps."""
-    if not bodies:
-        return math.inf, "nothing"
-    T = fk(np.asarray(qs, dtype=float), model).reshape(-1, 4, 4)
-    heading = T[:, :2, 0]
-    norm = np.linalg.norm(heading, axis=1, keepdims=True)
-    heading = np.where(norm > 1e-6, heading / np.maximum(norm, 1e-12), 0.0)
-    xy = T[:, :2, 3] + held.ahead * heading
-    bottom = T[:, 2, 3] - held.grasp_offset
-    top = bottom + held.height
-    b_xy = np.array([b.xy for b in bodies], dtype=float).reshape(-1, 2)
-    b_r = np.array([b.radius for b in bodies], dtype=float)
-    b_bottom = np.array([b.bottom for b in bodies], dtype=float)
-    b_top = np.array([b.top for b in bodies], dtype=float)
-    d_xy = np.linalg.norm(xy[:, None, :] - b_xy[None], axis=-1) - held.radius - b_r
-    d_z = np.maximum(b_bottom[None] - top[:, None], bottom[:, None] - b_top[None])
-    d = signed_gap(d_xy, d_z)
-    i, k = np.unravel_index(int(np.argmin(d)), d.shape)
-    return float(d[i, k]), bodies[int(k)].describe()
 
 
 @dataclass(frozen=True)

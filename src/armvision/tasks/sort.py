@@ -62,7 +62,7 @@ from armvision.fusion.tracker import TrackState
 from armvision.runtime.context import TaskContext, TaskError
 from armvision.runtime.planning_scene import PlanningScene
 from armvision.tasks.analyze import AnalyzeResult, analyze
-from armvision.tasks.carry import CARRY_CLEARANCE_M, Held
+from armvision.tasks.carry import CARRY_CLEARANCE_M, Held, held_obstacles
 from armvision.tasks.colour import COLOUR_PALETTE
 from armvision.tasks.grab import GrabResult, grab
 from armvision.tasks.grasp_plan import TOP_BELOW_M
@@ -70,7 +70,6 @@ from armvision.tasks.place import (
     PlaceError,
     Placer,
     SetDown,
-    held_obstacles,
     holding,
     reachable,
     zone_rect,

@@ -24,7 +24,7 @@ from armvision.camera.frames import Intrinsics, pixel_box, project
 from armvision.geometry import inv_T, make_T, rpy_to_R
 from armvision.perception.detection import BOTTLE_BODY_FRACTION
 from armvision.perception.liquid import bottle_outline
-from armvision.robot.kinematics import ArmModel
+from armvision.robot.kinematics import ArmModel, ik
 from armvision.tasks.carry import BACKOFF_MARGIN_M, EMPTY_MAX_PITCH_DEG
 from armvision.tasks.grab import GRIPPER_HALF_WIDTH_M, HOVER_CLEARANCE_M
 from armvision.tasks.motion import unflipped_ik
@@ -97,14 +97,23 @@ class Spot:
     box: Box
 
 
-def _reachable(p: ArrayLike, yaw: float, max_pitch_deg: int, model: ArmModel) -> bool:
-    """Whether the gripper reaches ``p`` facing ``yaw``, pitched down at most
-    ``max_pitch_deg`` (5 degree steps), with the wrist unflipped."""
-    return any(
-        unflipped_ik(make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p), model.home, model)
-        is not None
-        for pitch in range(0, max_pitch_deg + 1, 5)
-    )
+def _reachable(
+    p: ArrayLike, yaw: float, pitches: Sequence[int], model: ArmModel, seed: Array
+) -> bool:
+    """Whether the gripper reaches ``p`` facing ``yaw`` pitched down by one of ``pitches``
+    (degrees) on the wrist branch of ``seed``: unflipped, or flipped if the seed's is (the
+    carrying moves stay on the branch the grasp left the arm on:
+    :func:`~armvision.tasks.motion.level_pose`)."""
+    flipped = abs(seed[3]) >= math.pi / 2 or abs(seed[5]) >= math.pi / 2
+    for pitch in pitches:
+        T = make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p)
+        if not flipped and unflipped_ik(T, seed, model) is not None:
+            return True
+        if flipped:
+            q, ok = ik(T, seed, model)
+            if ok and (abs(q[3]) >= math.pi / 2 or abs(q[5]) >= math.pi / 2):
+                return True
+    return False
 
 
 def presentation_spot(
@@ -119,6 +128,8 @@ def presentation_spot(
     standoff: float,
     model: ArmModel,
     carry_z: float,
+    held_pitch_deg: int = 0,
+    seed: ArrayLike | None = None,
 ) -> Spot | None:
     """The spot on the table where the camera sees the bottle best; None if there is none.
 
@@ -130,12 +141,16 @@ def presentation_spot(
     any height counts as blocking); (4) the open gripper's corridor from ``standoff`` short of
     it is clear (as the grasp requires); (5) the arm reaches, facing it from the base, the
     grasp pose ``grasp_offset`` above the table and the carry pose at ``carry_z`` with the
-    gripper level (it holds the bottle there), and the back-off point (:data:`BACKOFF_MARGIN_M`
+    gripper pitched as it was at the grasp, ``held_pitch_deg`` (it holds the bottle there;
+    :class:`~armvision.tasks.carry.Held`), and the back-off point (:data:`BACKOFF_MARGIN_M`
     behind the bottle) at the grasp height and :data:`HOVER_CLEARANCE_M` above the bottle,
-    pitched down if need be. The best is the one whose distance from the camera is nearest
-    ``present_distance``, then the one nearest the image centre, preferring those seen
-    against bare table (:func:`_bare_background`).
+    pitched down if need be, all on the wrist branch of ``seed`` (the joints the grasp left
+    the arm at; default the home pose's, unflipped). The best is the one whose distance from
+    the camera is nearest ``present_distance``, then the one nearest the image centre,
+    preferring those seen against bare table (:func:`_bare_background`).
     """
+    held, empty = (held_pitch_deg,), range(0, EMPTY_MAX_PITCH_DEG + 1, 5)
+    q_seed = model.home if seed is None else np.asarray(seed, dtype=float)
     T_base_cam = np.asarray(T_base_cam, dtype=float)
     T_cam_base = inv_T(T_base_cam)
     p_cam = T_base_cam[:3, 3]
@@ -156,12 +171,12 @@ def presentation_spot(
             grasp_z = table_z + grasp_offset
             back = xy * max(d - radius - BACKOFF_MARGIN_M, 0.0) / d
             poses = (
-                (xy, grasp_z, 0),
-                (xy, carry_z, 0),
-                (back, grasp_z, EMPTY_MAX_PITCH_DEG),
-                (back, table_z + height + HOVER_CLEARANCE_M, EMPTY_MAX_PITCH_DEG),
+                (xy, grasp_z, held),
+                (xy, carry_z, held),
+                (back, grasp_z, empty),
+                (back, table_z + height + HOVER_CLEARANCE_M, empty),
             )
-            if not all(_reachable([*p, z], yaw, pitch, model) for p, z, pitch in poses):
+            if not all(_reachable([*p, z], yaw, pitch, model, q_seed) for p, z, pitch in poses):
                 continue
             centre_px = 0.5 * (box[0] + box[2]) - intr.ppx
             score = abs(distance - present_distance) + 0.05 * abs(centre_px) / intr.fx
