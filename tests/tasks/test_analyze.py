@@ -21,9 +21,9 @@ from armvision.bench.system import sim_system
 from armvision.camera.frames import Intrinsics
 from armvision.config import Config
 from armvision.eval.liquid import true_box_and_mask
-from armvision.geometry import inv_T, make_T
+from armvision.geometry import inv_T, make_T, rpy_to_R
 from armvision.perception.liquid import LiquidLevelMeter
-from armvision.robot.kinematics import VX300S
+from armvision.robot.kinematics import VX300S, ik_solutions
 from armvision.runtime.context import TaskContext, TaskStopped
 from armvision.runtime.system import System
 from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
@@ -35,6 +35,7 @@ from armvision.tasks.spots import (
     Obstacle,
     bottle_box,
     presentation_spot,
+    presentation_spots,
 )
 
 IN_PLACE_TOL = 0.09
@@ -300,3 +301,36 @@ def test_presentation_spot_is_in_view_reachable_and_clear() -> None:
     grid = np.arange(-0.75, 0.76, 0.15)
     crowd = [Obstacle((x, y), 0.08, 0.2) for x in grid for y in grid]
     assert presentation_spot(obstacles=crowd, **args) is None
+
+
+def test_presentation_spots_are_ranked_and_reached_on_the_grasps_wrist_branch() -> None:
+    T_base_cam = random_camera_pose(Config().sim, None)
+    args = dict(
+        T_base_cam=T_base_cam,
+        intr=INTR,
+        radius=0.032,
+        height=0.2,
+        table_z=0.0,
+        grasp_offset=0.09,
+        obstacles=[],
+        present_distance=0.45,
+        standoff=0.15,
+        carry_z=0.35,
+    )
+    ranked = presentation_spots(model=VX300S, **args)
+    assert ranked and ranked[0] == presentation_spot(model=VX300S, **args)
+    # Without an arm to check, every spot in view and clear counts (a planner decides):
+    # those the arm reaches are among them.
+    unchecked = presentation_spots(model=None, **args)
+    assert {s.xy for s in ranked} < {s.xy for s in unchecked}
+    # From a grasp that left the forearm rolled half a turn, a spot counts only if the arm
+    # reaches it on that branch. Facing a spot from the base, that branch has the forearm
+    # rolled to its +-180 degree limit: the closed-form IK finds no such solution within the
+    # limits for the unflipped branch's spots, so there is none.
+    seed = np.array([0.83, -0.34, 1.14, -1.92, 1.25, 2.44])
+    assert presentation_spots(model=VX300S, seed=seed, **args) == []
+    for spot in ranked[:10]:
+        T = make_T(rpy_to_R(0.0, 0.0, spot.yaw), [spot.xy[0], spot.xy[1], 0.09])
+        solutions = ik_solutions(T, VX300S.home, VX300S)
+        assert solutions
+        assert not any(abs(q[3]) >= math.pi / 2 or abs(q[5]) >= math.pi / 2 for q in solutions)

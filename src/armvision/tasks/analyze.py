@@ -118,7 +118,10 @@ class AnalyzeResult:
     "presented"; ``duration_s`` from start to end (clock seconds). When ``ok`` is False the
     numbers are those of the last measurement made, if any, and ``reason`` says what failed;
     ``pick_untouched`` then says the pick for the presentation failed before the gripper
-    came to the bottle (:attr:`~armvision.tasks.grab.GrabResult.untouched`).
+    came to the bottle (:attr:`~armvision.tasks.grab.GrabResult.untouched`), ``unpresented``
+    that the bottle was picked to be presented, but there was no spot for it or the arm could
+    not carry it there, and it stands back in its place (the sort then moves it with the
+    place task's planner: :meth:`~armvision.tasks.sort._Sort.measure_moved`).
     """
 
     ok: bool
@@ -136,6 +139,7 @@ class AnalyzeResult:
     view: str | None = None
     duration_s: float = 0.0
     pick_untouched: bool = False
+    unpresented: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         def rounded(v: float | None, digits: int) -> float | None:
@@ -158,6 +162,7 @@ class AnalyzeResult:
             "view": self.view,
             "duration_s": round(self.duration_s, 3),
             "pick_untouched": self.pick_untouched,
+            "unpresented": self.unpresented,
         }
 
 
@@ -206,6 +211,7 @@ class _Analyze:
         self.samples: _Samples | None = None  # the last measurement, and where it was made
         self.view: str | None = None
         self.pick_untouched = False  # the pick failed before the gripper came to the bottle
+        self.stood_presented = False  # the bottle has stood at the presentation spot
 
     # ------------------------------------------------------------ results and time
 
@@ -239,6 +245,10 @@ class _Analyze:
             view=view if est is not None else None,
             duration_s=self.ctx.now() - self.start,
             pick_untouched=self.pick_untouched,
+            unpresented=not ok
+            and self.picked
+            and not self.stood_presented
+            and self.carrier.where == "back in its place",
         )
 
     def remaining(self) -> float:
@@ -548,6 +558,7 @@ class _Analyze:
         assert held is not None
         ctx.progress(0.45, f"presenting the bottle {where}")
         carrier.put_down(spot_xy, f"standing where it was presented, {where}")
+        self.stood_presented = True
 
         ctx.progress(0.6, "measuring the presented bottle")
         samples = (

@@ -17,7 +17,11 @@ One bottle after the other, until none is left to look at:
 2. **Measure** it with the analyze task (:func:`~armvision.tasks.analyze.analyze`: in place,
    or picked and presented when the view is poor, then put back). No trustworthy fill (an
    opaque wall, a hidden body: the meter says ``unknown``) or no colour name: skipped, with
-   the reason.
+   the reason. A bottle the analysis picked but could not carry to a presentation spot (its
+   carrying moves keep the bottle as the grasp took it; near the base a grasp may leave the
+   arm where no spot in view is reachable so) is taken once more and set down with the
+   place task's planner on the best presentation spot that planner reaches, then measured
+   and sorted from there (:meth:`_Sort.measure_moved`).
 3. **Choose the zone** by the rule; check before the grasp that the zone has a free spot for
    a bottle of the track's size (else skipped: "zone full").
 4. **Grab** it (:func:`~armvision.tasks.grab.grab`, collision-aware, from the side, or from
@@ -75,9 +79,13 @@ from armvision.tasks.place import (
     zone_rect,
     zone_spot,
 )
+from armvision.tasks.spots import Obstacle, presentation_spots
 
 Array = NDArray[np.float64]
 
+#: A bottle whose presentation the analysis could not carry is set down on the first of this
+#: many presentation spots the place planner finds a way to (each is planned in full).
+MAX_SHOW_SPOTS = 40
 #: A bottle track this near where a handled bottle stood is that bottle, m.
 SAME_BOTTLE_M = 0.06
 #: The sort looks at no more bottles than this (a tracker that keeps making new tracks
@@ -192,7 +200,8 @@ class BottleReport:
     place: dict[str, Any] | None = None
     picked: bool = False  # the analysis picked it to present it (and put it back)
     tries: int = 1  # grasps tried (a refused one is tried again after others moved)
-    aside: tuple[float, float] | None = None  # where it was set aside, out of a cluster
+    aside: tuple[float, float] | None = None  # where it was set aside (out of a cluster, or
+    # where the camera sees it, its presentation out of the analysis's reach)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -339,6 +348,8 @@ class _Sort:
                 report.action = "failed"  # the analysis could not put it back
             elif measured.pick_untouched:
                 self.wait(report, None, "")  # its pick was refused: try again later
+            elif measured.unpresented and report.aside is None:
+                self.measure_moved(np.asarray(measured.position or track.p_base), report)
             return
         zone, why = rule.zone_for(measured)
         if zone is None:
@@ -469,6 +480,65 @@ class _Sort:
         moved = self.set_aside(track, grabbed, before, report, None, "to be measured")
         if moved is not None:
             self.handle(moved, report)
+
+    def measure_moved(self, where: Array, report: BottleReport) -> None:
+        """A bottle the analysis picked to present, but could not carry (no spot it reaches
+        with the bottle held as the grasp took it, or a carry out of reach; it stands back at
+        ``where``): taken again and set down with the place task's planner, which keeps the
+        wrist branch the grasp chose and checks every move against the scene, on the best
+        :func:`~armvision.tasks.spots.presentation_spots` spot it can reach, then measured and
+        sorted from there (:meth:`handle`). Once per bottle (``report.aside``)."""
+        ctx = self.ctx
+        track = self.track_near(where[:2])
+        if track is None:
+            report.reason += "; its track was lost after it was put back"
+            return
+        before = ctx.state().planning_scene
+        grabbed = grab(ctx, track_id=track.id, allow_top=False)
+        if not grabbed.ok:
+            report.reason += f"; taken to be shown to the camera elsewhere: {grabbed.reason}"
+            if _in_fingers(ctx):
+                report.action = "failed"
+            return
+        placer = self.placer(track, grabbed, before)
+        held = placer.held
+        scene, obstacles = placer.scene()
+        spots = presentation_spots(
+            ctx.state().T_base_cam,
+            ctx.camera.intrinsics,
+            held.radius,
+            held.height,
+            held.table_z,
+            held.grasp_offset,
+            [Obstacle(b.xy, b.radius, b.top) for b in obstacles],
+            ctx.config.analyze.present_distance,
+            ctx.config.grab.standoff,
+            None,
+            held.carry_z,
+        )
+        why = "no spot in the camera's full view"
+        for spot in spots[:MAX_SHOW_SPOTS]:
+            xy = np.asarray(spot.xy, dtype=float)
+            if in_zone(ctx.config, xy) is not None:
+                continue
+            plan = placer.plan(xy, scene, obstacles)
+            if isinstance(plan, SetDown):
+                break
+            why = plan
+        else:
+            self.put_back(placer, report, f"{report.reason}; it cannot be shown elsewhere ({why})")
+            return
+        self.progress(0.4, f"bottle {len(self.reports)}: setting it down where the camera sees it")
+        shown = placer.set_down(plan, None)
+        report.aside = (float(plan.spot[0]), float(plan.spot[1]))
+        if not shown.released:
+            report.action, report.reason = "failed", f"{report.reason}; moving it: {shown.reason}"
+            return
+        moved = self.track_near(plan.spot)
+        if moved is None:
+            report.reason += "; set down where the camera sees it, but its track was lost there"
+            return
+        self.handle(moved, report)
 
     def wait(self, report: BottleReport, zone: str | None, why: str) -> None:
         """Keep a bottle whose grasp was refused before anything moved (its neighbours block

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -116,7 +117,13 @@ def _reachable(
     return False
 
 
-def presentation_spot(
+def presentation_spot(*args: Any, **kwargs: Any) -> Spot | None:
+    """The best of :func:`presentation_spots` (same arguments), None if there is none."""
+    spots = presentation_spots(*args, **kwargs)
+    return spots[0] if spots else None
+
+
+def presentation_spots(
     T_base_cam: ArrayLike,
     intr: Intrinsics,
     radius: float,
@@ -126,12 +133,12 @@ def presentation_spot(
     obstacles: Sequence[Obstacle],
     present_distance: float,
     standoff: float,
-    model: ArmModel,
+    model: ArmModel | None,
     carry_z: float,
     held_pitch_deg: int = 0,
     seed: ArrayLike | None = None,
-) -> Spot | None:
-    """The spot on the table where the camera sees the bottle best; None if there is none.
+) -> list[Spot]:
+    """The spots on the table where the camera sees the bottle well, the best first.
 
     Candidates: :data:`SPOT_DISTANCES_M` from the base axis at :data:`SPOT_BEARINGS_RAD`. A
     candidate counts when (1) the bottle's projected box (:func:`bottle_box`) lies inside the
@@ -141,7 +148,8 @@ def presentation_spot(
     any height counts as blocking); (4) the open gripper's corridor from ``standoff`` short of
     it is clear (as the grasp requires); (5) the arm reaches, facing it from the base, the
     grasp pose ``grasp_offset`` above the table and the carry pose at ``carry_z`` with the
-    gripper pitched as it was at the grasp, ``held_pitch_deg`` (it holds the bottle there;
+    gripper pitched as it was at the grasp (not checked without a ``model``: a planner that
+    checks every move decides), ``held_pitch_deg`` (it holds the bottle there;
     :class:`~armvision.tasks.carry.Held`), and the back-off point (:data:`BACKOFF_MARGIN_M`
     behind the bottle) at the grasp height and :data:`HOVER_CLEARANCE_M` above the bottle,
     pitched down if need be, all on the wrist branch of ``seed`` (the joints the grasp left
@@ -150,11 +158,13 @@ def presentation_spot(
     preferring those seen against bare table (:func:`_bare_background`).
     """
     held, empty = (held_pitch_deg,), range(0, EMPTY_MAX_PITCH_DEG + 1, 5)
-    q_seed = model.home if seed is None else np.asarray(seed, dtype=float)
+    q_seed = (
+        np.zeros(6) if model is None else model.home if seed is None else np.asarray(seed, float)
+    )
     T_base_cam = np.asarray(T_base_cam, dtype=float)
     T_cam_base = inv_T(T_base_cam)
     p_cam = T_base_cam[:3, 3]
-    best: tuple[float, Spot] | None = None
+    scored: list[tuple[float, Spot]] = []
     for d in SPOT_DISTANCES_M:
         for yaw in SPOT_BEARINGS_RAD:
             xy = np.array([d * math.cos(yaw), d * math.sin(yaw)])
@@ -176,15 +186,16 @@ def presentation_spot(
                 (back, grasp_z, empty),
                 (back, table_z + height + HOVER_CLEARANCE_M, empty),
             )
-            if not all(_reachable([*p, z], yaw, pitch, model, q_seed) for p, z, pitch in poses):
+            if model is not None and not all(
+                _reachable([*p, z], yaw, pitch, model, q_seed) for p, z, pitch in poses
+            ):
                 continue
             centre_px = 0.5 * (box[0] + box[2]) - intr.ppx
             score = abs(distance - present_distance) + 0.05 * abs(centre_px) / intr.fx
             if not _bare_background(xy, radius, p_cam[:2], obstacles):
                 score += CLUTTER_PENALTY
-            if best is None or score < best[0]:
-                best = (score, Spot((float(xy[0]), float(xy[1])), float(yaw), distance, box))
-    return None if best is None else best[1]
+            scored.append((score, Spot((float(xy[0]), float(xy[1])), float(yaw), distance, box)))
+    return [spot for _, spot in sorted(scored, key=lambda s: s[0])]
 
 
 def _clear(
