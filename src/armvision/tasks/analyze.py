@@ -60,8 +60,12 @@ Units: metres, seconds, pixels for boxes; positions in the base frame unless nam
 The timeout ``analyze.timeout_s`` bounds finding and measuring; once the bottle has been
 moved it is always put back (Stop still halts everything at once: TaskStopped propagates,
 the arm halts where it is, the gripper as it was). A carry the arm cannot make (a spot it
-cannot reach holding the bottle level) stands the bottle straight back where it was taken,
-when the gripper is still above that spot (:meth:`~armvision.tasks.carry.Carrier.stand_back`).
+cannot reach holding the bottle as it was grasped) stands the bottle straight back where it
+was taken, when the gripper is still above that spot
+(:meth:`~armvision.tasks.carry.Carrier.stand_back`). The spot is chosen, and the bottle carried,
+on the wrist branch the grasp left the arm on: a collision-aware grasp near the base may roll
+the forearm half a turn, and then no spot in view may be reachable (``unpresented``; the sort
+moves such a bottle with the place task's planner instead).
 """
 
 from __future__ import annotations

@@ -3,10 +3,11 @@
 :class:`Held` is the picked bottle (its radius from the closed fingers, its height, the table,
 the grasp and carry heights, the grasp's pitch, where it came from). :class:`Carrier` moves the
 arm with it: every move is a straight line in short segments (:meth:`Carrier.straight`), each
-point reached with the wrist unflipped; a held bottle is moved at the pitch it was grasped at
-(level, or pitched down where the grasp near the base had to be: the bottle stood upright
-between the fingers then, so it stays upright), an empty gripper at that pitch, level, or
-pitched down up to :data:`EMPTY_MAX_PITCH_DEG`. :meth:`Carrier.put_down` carries the bottle
+point reached on the wrist branch the arm is on (unflipped, or as a collision-aware grasp left
+it: :func:`~armvision.tasks.motion.level_pose`); a held bottle is moved at the pitch it was
+grasped at (level, or pitched down where the grasp near the base had to be: the bottle stood
+upright between the fingers then, so it stays upright), an empty gripper at that pitch, level,
+or pitched down up to :data:`EMPTY_MAX_PITCH_DEG`. :meth:`Carrier.put_down` carries the bottle
 above everything else on the table (where the arm cannot lift it that high, above what stands
 in its way: :meth:`Carrier.lower_carry`) to a spot, stands it there and releases it,
 :meth:`Carrier.retreat` backs the gripper off behind it and up out of the camera's view,
@@ -249,8 +250,8 @@ class Carrier:
 
     def pose(self, p: ArrayLike, yaw: float, pitches: Sequence[int]) -> tuple[Array, Array]:
         """(T_base_ee, q): the gripper at ``p`` facing ``yaw`` at the first of ``pitches``
-        (degrees down) the arm reaches near the last commanded pose (wrist unflipped); Abort
-        if none."""
+        (degrees down) the arm reaches near the last commanded pose, on its wrist branch
+        (:func:`~armvision.tasks.motion.level_pose`); Abort if none."""
         arm = self.ctx.arm
         seed = motion_seed(arm, self.T_base_ee_last)
         found = level_pose(p, yaw, seed, arm.model, pitches=pitches)
@@ -284,9 +285,10 @@ class Carrier:
     def plan_legs(
         self, legs: Sequence[tuple[ArrayLike, float, Sequence[int]]]
     ) -> list[list[tuple[Array, Array, float]]] | str:
-        """The straight moves ``legs`` ((goal, yaw, max pitch) each, from the last commanded
-        pose, segmented as :meth:`straight` does): per leg its points (pose, joints, segment
-        length), each solved near the one before; or why one cannot be reached. Planned
+        """The straight moves ``legs`` ((goal, yaw, pitches to try) each, from the last
+        commanded pose, segmented as :meth:`straight` does): per leg its points (pose,
+        joints, segment length), each solved near the one before; or why one cannot be
+        reached. Planned
         before the first move, so a carry the arm cannot finish does not start, and executed
         as planned (:meth:`run_leg`)."""
         assert self.T_base_ee_last is not None
