@@ -2,7 +2,8 @@
 
 A joint-space move between two poses near the table can sweep the gripper through what stands
 there, so both tasks move along straight lines in short segments, each point reached with the
-wrist unflipped and as level as the arm allows, and no joint faster than a share of its limit.
+wrist unflipped (or on the flipped branch a collision-aware grasp left the arm on, never
+switching branch) and as level as the arm allows, and no joint faster than a share of its limit.
 """
 
 from __future__ import annotations
