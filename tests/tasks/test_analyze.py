@@ -270,10 +270,11 @@ def test_bottle_box_bounds_the_true_bottle() -> None:
     assert np.allclose(box, truth, atol=3.0)
 
 
-def test_presentation_spot_is_in_view_reachable_and_clear() -> None:
-    T_base_cam = random_camera_pose(Config().sim, None)
-    args = dict(
-        T_base_cam=T_base_cam,
+def _spot_args() -> dict:
+    """A 20 cm bottle of radius 32 mm grasped 9 cm up, carried at 35 cm, seen from the
+    default camera placement."""
+    return dict(
+        T_base_cam=random_camera_pose(Config().sim, None),
         intr=INTR,
         radius=0.032,
         height=0.2,
@@ -281,9 +282,12 @@ def test_presentation_spot_is_in_view_reachable_and_clear() -> None:
         grasp_offset=0.09,
         present_distance=0.45,
         standoff=0.15,
-        model=VX300S,
         carry_z=0.35,
     )
+
+
+def test_presentation_spot_is_in_view_reachable_and_clear() -> None:
+    args = {**_spot_args(), "model": VX300S}
     spot = presentation_spot(obstacles=[], **args)
     assert spot is not None
     x0, y0, x1, y1 = spot.box
@@ -304,19 +308,7 @@ def test_presentation_spot_is_in_view_reachable_and_clear() -> None:
 
 
 def test_presentation_spots_are_ranked_and_reached_on_the_grasps_wrist_branch() -> None:
-    T_base_cam = random_camera_pose(Config().sim, None)
-    args = dict(
-        T_base_cam=T_base_cam,
-        intr=INTR,
-        radius=0.032,
-        height=0.2,
-        table_z=0.0,
-        grasp_offset=0.09,
-        obstacles=[],
-        present_distance=0.45,
-        standoff=0.15,
-        carry_z=0.35,
-    )
+    args = {**_spot_args(), "obstacles": []}
     ranked = presentation_spots(model=VX300S, **args)
     assert ranked and ranked[0] == presentation_spot(model=VX300S, **args)
     # Without an arm to check, every spot in view and clear counts (a planner decides):

@@ -12,11 +12,7 @@ import pytest
 from armvision.geometry import make_T, rpy_to_R
 from armvision.robot.kinematics import VX300S, fk, ik_solutions
 from armvision.tasks.carry import grasp_pitch_deg
-from armvision.tasks.motion import level_pose
-
-
-def _flipped(q: np.ndarray) -> bool:
-    return abs(q[3]) >= math.pi / 2 or abs(q[5]) >= math.pi / 2
+from armvision.tasks.motion import level_pose, wrist_flipped
 
 
 def _branches(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -27,8 +23,8 @@ def _branches(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         for q in ik_solutions(T, VX300S.home, VX300S)
         if abs((q[0] - bearing + math.pi) % (2 * math.pi) - math.pi) < math.pi / 2
     ]
-    plain = [q for q in facing if not _flipped(q)]
-    rolled = [q for q in facing if _flipped(q)]
+    plain = [q for q in facing if not wrist_flipped(q)]
+    rolled = [q for q in facing if wrist_flipped(q)]
     assert plain and rolled, "the pose should have both wrist branches"
     return plain[0], rolled[0]
 
@@ -46,7 +42,7 @@ def test_a_move_from_a_flipped_wrist_stays_on_its_branch() -> None:
         found = level_pose(p1, yaw, seed, VX300S, pitches=(0,))
         assert found is not None
         T, q = found
-        assert _flipped(q) == want_flipped
+        assert wrist_flipped(q) == want_flipped
         assert float(np.max(np.abs(q - seed))) < 0.3
         np.testing.assert_allclose(fk(q, VX300S), T, atol=1e-6)
         np.testing.assert_allclose(T[:3, 3], p1, atol=1e-9)

@@ -28,13 +28,17 @@ MAX_JOINT_STEP_RAD = 1.2
 SPEED_FRACTION = 0.5
 
 
+def wrist_flipped(q: Array) -> bool:
+    """Whether joints ``q`` have the wrist flipped: forearm roll or wrist rotate beyond +-90
+    degrees (the branch a collision-aware grasp may take, the forearm rolled half a turn)."""
+    return bool(abs(q[3]) >= math.pi / 2 or abs(q[5]) >= math.pi / 2)
+
+
 def unflipped_ik(T_base_ee: Array, seed: Array, model: ArmModel) -> Array | None:
     """Joint angles for ``T_base_ee`` near ``seed`` with the wrist unflipped (forearm roll and wrist
     rotate within +-90 degrees), or None."""
     q, ok = ik(T_base_ee, seed, model)
-    if ok and abs(q[3]) < math.pi / 2 and abs(q[5]) < math.pi / 2:
-        return q
-    return None
+    return q if ok and not wrist_flipped(q) else None
 
 
 def motion_seed(arm: Arm, T_base_ee_last: Array | None) -> Array:
@@ -58,7 +62,7 @@ def level_pose(
     ``seed`` and with the wrist unflipped (:func:`unflipped_ik`), or, from a seed whose wrist
     is flipped (a collision-aware grasp may reach in with the forearm rolled), on the seed's
     own branch; None if no such pose."""
-    flipped = abs(seed[3]) >= math.pi / 2 or abs(seed[5]) >= math.pi / 2
+    flipped = wrist_flipped(seed)
     for pitch_deg in range(0, max_pitch_deg + 1, 5) if pitches is None else pitches:
         T = make_T(rpy_to_R(0.0, math.radians(pitch_deg), yaw), p)
         q: Array | None

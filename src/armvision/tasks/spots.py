@@ -28,7 +28,7 @@ from armvision.perception.liquid import bottle_outline
 from armvision.robot.kinematics import ArmModel, ik
 from armvision.tasks.carry import BACKOFF_MARGIN_M, EMPTY_MAX_PITCH_DEG
 from armvision.tasks.grab import GRIPPER_HALF_WIDTH_M, HOVER_CLEARANCE_M
-from armvision.tasks.motion import unflipped_ik
+from armvision.tasks.motion import unflipped_ik, wrist_flipped
 
 Array = NDArray[np.float64]
 #: A pixel box (x0, y0, x1, y1).
@@ -105,14 +105,14 @@ def _reachable(
     (degrees) on the wrist branch of ``seed``: unflipped, or flipped if the seed's is (the
     carrying moves stay on the branch the grasp left the arm on:
     :func:`~armvision.tasks.motion.level_pose`)."""
-    flipped = abs(seed[3]) >= math.pi / 2 or abs(seed[5]) >= math.pi / 2
+    flipped = wrist_flipped(seed)
     for pitch in pitches:
         T = make_T(rpy_to_R(0.0, math.radians(pitch), yaw), p)
         if not flipped and unflipped_ik(T, seed, model) is not None:
             return True
         if flipped:
             q, ok = ik(T, seed, model)
-            if ok and (abs(q[3]) >= math.pi / 2 or abs(q[5]) >= math.pi / 2):
+            if ok and wrist_flipped(q):
                 return True
     return False
 
