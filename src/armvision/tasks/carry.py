@@ -187,6 +187,16 @@ def held_obstacles(
     return out
 
 
+def scene_without_held(
+    scene: PlanningScene, held_track: int | None, grip_xy: Array | None, held_radius: float
+) -> tuple[PlanningScene, list[Body]]:
+    """``scene`` without the held bottle (:func:`held_obstacles`), and its obstacles."""
+    obstacles = held_obstacles(scene, held_track, grip_xy, held_radius)
+    bodies = tuple(b for b in obstacles if b.track_id is not None)
+    cells = tuple(b for b in obstacles if b.track_id is None)
+    return PlanningScene(scene.table_z, bodies, cells, scene.arm), obstacles
+
+
 def held_body_clearance(
     qs: Sequence[Array] | Array, held: Held, bodies: Sequence[Body], model: ArmModel
 ) -> tuple[float, str]:
@@ -382,10 +392,9 @@ class Carrier:
             raise Abort(why)
         model = self.ctx.arm.model
         grip = self.T_base_ee_last[:2, 3]
-        obstacles = held_obstacles(scene, self.held_track, grip, held.radius)
-        bodies = [b for b in obstacles if b.track_id is not None]
-        cells = tuple(b for b in obstacles if b.track_id is None)
-        check = Checker(PlanningScene(scene.table_z, tuple(bodies), cells, scene.arm), None, model)
+        without, _ = scene_without_held(scene, self.held_track, grip, held.radius)
+        bodies = without.bodies
+        check = Checker(without, None, model)
         q_now = np.asarray(self.ctx.arm.get_joint_positions(), dtype=float)
         closed, opened = self.finger(), model.finger_limits[1]
         start, _ = check.least(q_now[None, :], closed)

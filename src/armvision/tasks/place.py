@@ -67,7 +67,7 @@ from armvision.tasks.carry import (
     Carrier,
     Held,
     held_body_clearance,
-    held_obstacles,
+    scene_without_held,
 )
 from armvision.tasks.grab import (
     GRASP_MARGIN_M,
@@ -468,10 +468,7 @@ class Placer:
         """The planning scene without the held bottle, and its obstacles."""
         grip = np.asarray(self.ctx.arm.get_ee_pose(), dtype=float)[:2, 3]
         full = self.base_scene or self.ctx.state().planning_scene
-        obstacles = held_obstacles(full, self.held_track, grip, self.held.radius)
-        bodies = tuple(b for b in obstacles if b.track_id is not None)
-        cells = tuple(b for b in obstacles if b.track_id is None)
-        return PlanningScene(full.table_z, bodies, cells, full.arm), obstacles
+        return scene_without_held(full, self.held_track, grip, self.held.radius)
 
     def plan(
         self,
