@@ -182,7 +182,24 @@ def solve3(A: Array, b: Array) -> tuple[float, float, float] | None:
     Written out: ``np.linalg.solve``'s call costs more than the arithmetic on a 3x3, and the
     circle fits solve hundreds of them per frame."""
     (a, b_, c), (d, e, f), (g, h, i) = A.tolist()
-    x, y, z = b.tolist()
+    return _solve3(a, b_, c, d, e, f, g, h, i, *b.tolist())
+
+
+def _solve3(
+    a: float,
+    b_: float,
+    c: float,
+    d: float,
+    e: float,
+    f: float,
+    g: float,
+    h: float,
+    i: float,
+    x: float,
+    y: float,
+    z: float,
+) -> tuple[float, float, float] | None:
+    """:func:`solve3` on the matrix's entries, row by row, and the right-hand side's."""
     c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * c0 + b_ * c1 + c * c2
     if not abs(det) > 1e-12 * abs(a * e * i):  # also a zero diagonal, or NaN
@@ -247,26 +264,38 @@ def fit_circles_geometric(
     starts = np.asarray(bounds[:-1])
     which = np.repeat(np.arange(len(r)), np.diff(bounds))
     scale = np.asarray(scales, dtype=float)[which]
+    # Coordinates and every per-point term as contiguous rows: strided columns of an
+    # (N, k) array cost several times as much per operation at these sizes.
+    x, y = np.ascontiguousarray(np.asarray(xy, dtype=float).T)
     active = list(range(len(r)))
-    # Columns: the Jacobian of the residuals (d/dcx, d/dcy, d/dr), then the residuals, so
-    # the runs' sums of w J_i [J | res] give each circle's normal equations.
-    J = np.empty((len(xy), 4))
-    J[:, 2] = -1.0
+    # Rows: the distinct sums of a circle's Gauss-Newton equations J^T W J step = -J^T W res,
+    # with J = -[ux, uy, 1] (u the unit vector from the centre to the point): the
+    # symmetric left side's 6 terms, then the right side's 3; summed over each run.
+    terms = np.empty((9, len(x)))
     for _ in range(iterations):
-        diff = xy - c[which]
-        dist = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-9)
+        ux = x - c[which, 0]
+        uy = y - c[which, 1]
+        dist = np.sqrt(ux * ux + uy * uy)
+        np.maximum(dist, 1e-9, out=dist)
         res = dist - r[which]
         w = np.minimum(1.0, scale / np.maximum(np.abs(res), 1e-12))
-        np.divide(diff, -dist[:, None], out=J[:, :2])
-        J[:, 3] = res
-        if len(r) == 1:
-            normals = ((J[:, :3] * w[:, None]).T @ J)[None]
-        else:
-            products = np.einsum("ni,nj->nij", J[:, :3] * w[:, None], J)
-            normals = np.add.reduceat(products, starts, axis=0)
+        ux /= dist
+        uy /= dist
+        wux, wuy = w * ux, w * uy
+        np.multiply(wux, ux, out=terms[0])
+        np.multiply(wux, uy, out=terms[1])
+        terms[2] = wux
+        np.multiply(wuy, uy, out=terms[3])
+        terms[4] = wuy
+        terms[5] = w
+        np.multiply(wux, res, out=terms[6])
+        np.multiply(wuy, res, out=terms[7])
+        np.multiply(w, res, out=terms[8])
+        sums = np.add.reduceat(terms, starts, axis=1).T.tolist()
         still = []
         for k in active:
-            step = solve3(normals[k, :, :3], -normals[k, :, 3])
+            xx, xy_, xr, yy, yr, rr, bx, by, br = sums[k]
+            step = _solve3(xx, xy_, xr, xy_, yy, yr, xr, yr, rr, bx, by, br)
             if step is None:  # all points in one spot: keep the start
                 continue
             c[k, 0] += step[0]
