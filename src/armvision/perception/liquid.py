@@ -88,7 +88,6 @@ from armvision.camera.frames import (
     Intrinsics,
     RGBDFrame,
     deproject,
-    pixel_box,
     project,
     project_xyz,
 )
@@ -355,11 +354,12 @@ def _step_split(is_liquid: NDArray[np.bool_]) -> tuple[int, int]:
     evenly. Returns (k, cost).
     """
     n = len(is_liquid)
-    liquid = np.concatenate([[0], np.cumsum(is_liquid)])
-    ks = np.arange(n + 1)
-    cost = (ks - liquid) + (liquid[-1] - liquid)
-    best = np.flatnonzero(cost == cost.min())
-    return int(best[len(best) // 2]), int(cost.min())
+    liquid = np.zeros(n + 1, dtype=np.intp)  # liquid rows below k
+    np.cumsum(is_liquid, out=liquid[1:])
+    cost = np.arange(n + 1) + liquid[-1] - 2 * liquid
+    low = cost.min()
+    best = np.flatnonzero(cost == low)
+    return int(best[len(best) // 2]), int(low)
 
 
 # --------------------------------------------------------------------------- default: profile
@@ -398,13 +398,18 @@ def bottle_outline(
     ``height`` broadcast (the meter fits many parameter sets at once); ``ring``, the
     :func:`unit_ring` around ``up`` if the caller has it already."""
     ring = unit_ring(up) if ring is None else ring
-    foot, up = np.asarray(foot, dtype=float), np.asarray(up, dtype=float)
-    r, h = np.asarray(radius, dtype=float), np.asarray(height, dtype=float)
-    rings = [
-        foot + (frac * h) * up + (scale * r) * ring
-        for frac, scale in ((0.0, 1.0), (body_fraction, 1.0), (1.0, CAP_RADIUS_FRACTION))
-    ]
-    return np.concatenate(rings, axis=-2)
+    up = np.asarray(up, dtype=float)
+
+    def ring_axis(a: ArrayLike) -> Array:
+        """``a`` with an axis for the three rings before its (point, xyz) axes."""
+        a = np.asarray(a, dtype=float)
+        return a[..., None, :, :] if a.ndim >= 2 else a
+
+    # All three rings at once, (..., ring, point, xyz): foot + (frac h) up + (scale r) ring.
+    frac = np.array([0.0, body_fraction, 1.0])[:, None, None]
+    scale = np.array([1.0, 1.0, CAP_RADIUS_FRACTION])[:, None, None]
+    pts = ring_axis(foot) + (frac * ring_axis(height)) * up + (scale * ring_axis(radius)) * ring
+    return pts.reshape(*pts.shape[:-3], -1, 3)
 
 
 @dataclass(frozen=True)
@@ -430,6 +435,9 @@ class _Frame3D:
         )
 
 
+#: cos and sin of the debug image's rings' 48 angles (closed: the last is the first).
+_DEBUG_COS = np.cos(np.linspace(0.0, 2.0 * math.pi, 48))
+_DEBUG_SIN = np.sin(np.linspace(0.0, 2.0 * math.pi, 48))
 #: The colour cue's inner columns across the liquid's width (within 0.7 of its radius).
 _INNER_COLUMNS = 15
 #: The lines of sight the meter looks at pass within this share of the radius from the
@@ -675,22 +683,23 @@ class LiquidLevelMeter:
         mask = np.array([free[0], free[0], free[1], free[2]])
 
         def bboxes(params: Array) -> Array:
-            """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection."""
+            """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection, as
+            :func:`~armvision.camera.frames.pixel_box` bounds them."""
             a, b, r, h = params.T[:, :, None, None]
             centre = foot + a * e1 + b * e2  # (M, 1, 3)
             pts = bottle_outline(centre, up, r, h, body_fraction, ring)  # (M, 72, 3)
-            uv = project(intr, pts.reshape(-1, 3)).reshape(len(params), -1, 2)
-            return pixel_box(uv)
+            u, v = project_xyz(intr, pts[..., 0], pts[..., 1], pts[..., 2])
+            return np.stack([u.min(1), v.min(1), u.max(1) + 1, v.max(1) + 1], axis=1)
 
         p = np.array([0.0, 0.0, radius, top])
         eps = 1e-4
         idx = np.flatnonzero(mask)
+        # The box at p and at p +- eps along each free parameter: central differences.
+        steps = np.zeros((1 + 2 * len(idx), 4))
+        steps[1 + np.arange(len(idx)), idx] = eps
+        steps[1 + len(idx) + np.arange(len(idx)), idx] = -eps
         for _ in range(8):
-            # The box at p and at p +- eps along each free parameter: central differences.
-            probes = np.repeat(p[None, :], 1 + 2 * len(idx), axis=0)
-            probes[1 + np.arange(len(idx)), idx] += eps
-            probes[1 + len(idx) + np.arange(len(idx)), idx] -= eps
-            boxes = bboxes(probes)
+            boxes = bboxes(p + steps)
             res = boxes[0] - target
             J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
             if len(idx) == 1:  # the radius alone (a detector's box): lstsq in closed form
@@ -698,7 +707,8 @@ class LiquidLevelMeter:
                 delta = np.array([-float(J[:, 0] @ res) / jj if jj > 0.0 else 0.0])
             else:
                 delta = np.linalg.lstsq(J, -res, rcond=None)[0]
-            p[idx] += np.clip(delta, -0.05, 0.05)  # a bad first guess must not overshoot
+            # A bad first guess must not overshoot (np.clip's bounds, without its overhead).
+            p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)
             p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
             if np.max(np.abs(delta)) < 1e-5:
                 break
@@ -809,9 +819,10 @@ class LiquidLevelMeter:
             best = np.argmax(g_band, axis=1)
             inside = (where[best] > lo) & (where[best] < hi)
             background = _median(g_out, axis=1)
-            strength = np.where(inside, g_band[np.arange(len(searched)), best] - background, 0.0)
+            strength = np.where(inside, g_band.max(axis=1) - background, 0.0)
             edged = strength > self.edge_threshold
-            if edged[lowest_searched].mean() >= 0.4:
+            lowest_edged = edged[lowest_searched]
+            if np.count_nonzero(lowest_edged) / len(lowest_edged) >= 0.4:
                 body_row &= edged
                 faint = np.maximum(faint, strength)
                 counted += 1
@@ -901,7 +912,9 @@ class LiquidLevelMeter:
         t_in = np.linspace(-0.7 * r_liq, 0.7 * r_liq, _INNER_COLUMNS)
         k = self._depression_tan(bf, s_body)[:, None]
         shift = k * np.sqrt(np.maximum(r_liq**2 - t_in[None, :] ** 2, 0.0))
-        t_bg = np.r_[np.linspace(-1.6 * r, -1.25 * r, 4), np.linspace(1.25 * r, 1.6 * r, 4)]
+        t_bg = np.concatenate(
+            [np.linspace(-1.6 * r, -1.25 * r, 4), np.linspace(1.25 * r, 1.6 * r, 4)]
+        )
         # One strip: the inner columns shifted, then the background's (shift 0).
         both = self._strip(
             frame,
@@ -1084,9 +1097,12 @@ class LiquidLevelMeter:
         strip = self._strip(frame, bf, s, np.concatenate([-grid, grid]))
         strip = strip.reshape(len(s), 2, len(grid), 3)
         g = _rgb_length(np.diff(strip, axis=2))
-        g = np.maximum(g, np.maximum(np.roll(g, 1, axis=2), np.roll(g, -1, axis=2)))
+        # Each step or its neighbour's, whichever is larger (wrapping around each side's
+        # columns, as np.roll does).
+        wrapped = np.concatenate([g[..., -1:], g, g[..., :1]], axis=2)
+        g = np.maximum(g, np.maximum(wrapped[..., :-2], wrapped[..., 2:]))
         edged = g - _median(g, axis=2)[..., None] > self.edge_threshold
-        share = edged.mean(axis=0)  # (side, column)
+        share = np.count_nonzero(edged, axis=0) / len(s)  # (side, column)
         out: list[float | None] = []
         for side_share in share:
             columns = np.flatnonzero(side_share >= 0.4)
@@ -1103,7 +1119,7 @@ class LiquidLevelMeter:
         height of the points within ``wall_band`` of the outer cylinder's front (a clear wall
         does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
         reaches at least that high, less a few mm of shoulder still near the radius."""
-        h = rays.height[rays.at_wall & (rays.miss < 0.8)]
+        h = rays.height[rays.at_wall]  # every ray passes within _RAY_MISS = 0.8 r
         return float(np.percentile(h, 95.0)) if len(h) >= 20 else 0.0
 
     def _why_unseen(
@@ -1131,27 +1147,36 @@ class LiquidLevelMeter:
         in_image = (
             (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
         )
-        seen = float(in_image.mean())
+        seen = np.count_nonzero(in_image) / len(in_image)
         if seen < self.min_body_seen:
             return f"only {100 * seen:.0f} % of the bottle's body is inside the image"
-        through_body = (rays.miss < 0.8) & (rays.s_axis > self.base) & (rays.s_axis < body)
-        if through_body.sum() < 20:
+
+        def share(mask: NDArray[np.bool_], of: NDArray[np.bool_], n: int) -> float:
+            """The share of the ``n`` rays ``of`` that ``mask`` marks (their mean)."""
+            return np.count_nonzero(mask & of) / n
+
+        # Every ray passes within _RAY_MISS = 0.8 r of the axis.
+        through_body = (rays.s_axis > self.base) & (rays.s_axis < body)
+        n_through = int(np.count_nonzero(through_body))
+        if n_through < 20:
             return "the bottle's body covers too few pixels to read a level"
-        hidden = float(rays.before[through_body].mean())
+        hidden = share(rays.before, through_body, n_through)
         if hidden > 1.0 - self.min_body_seen:
             return f"{100 * hidden:.0f} % of the bottle's body is hidden by something in front"
         body_rays = (
             (rays.miss < 0.5) & (rays.s_axis > self.base + 0.01) & (rays.s_axis < body - 0.005)
         )
-        if body_rays.sum() < 20:
+        n_body = int(np.count_nonzero(body_rays))
+        if n_body < 20:
             return None
-        dense_body = float(rays.on_bottle[body_rays].mean())
+        dense_body = share(rays.on_bottle, body_rays, n_body)
         if dense_body < self.opaque_share:
             return None
         upper_top = body + 0.004 + 0.5 * max(bf.top - body - 0.004, 0.0)
         neck_rays = (rays.miss < 0.25) & (rays.s_axis > body + 0.004) & (rays.s_axis < upper_top)
-        if neck_rays.sum() >= 10 and rays.on_bottle[neck_rays].mean() >= self.opaque_share:
-            neck = f"{100 * rays.on_bottle[neck_rays].mean():.0f} % of the neck"
+        n_neck = int(np.count_nonzero(neck_rays))
+        if n_neck >= 10 and share(rays.on_bottle, neck_rays, n_neck) >= self.opaque_share:
+            neck = f"{100 * share(rays.on_bottle, neck_rays, n_neck):.0f} % of the neck"
         elif passes_below is not None and passes_below >= bf.top - self.cap_m:
             neck = "no line of sight passes the bottle below its top"
         else:
@@ -1185,17 +1210,16 @@ class LiquidLevelMeter:
             & ~rays.at_wall
             & (rays.s_low < body)
         )
-        if use.sum() < self.min_depth_points:
+        if np.count_nonzero(use) < self.min_depth_points:
             return None
         n_rows = max(math.ceil((body - self.base) / self.step_m), 1)
-        on = rays.on_bottle[use]
         # A point on the bottle above the body is the wall of a shoulder or a neck, no
         # evidence of liquid below it.
-        keep = ~on | (rays.height[use] < body + 0.002)
-        at = rays.s_low[use]
-        row = np.clip(((at[keep] - self.base) / self.step_m).astype(int), 0, n_rows - 1)
+        keep = np.flatnonzero(use & (~rays.on_bottle | (rays.height < body + 0.002)))
+        on = rays.on_bottle[keep]
+        row = np.clip(((rays.s_low[keep] - self.base) / self.step_m).astype(int), 0, n_rows - 1)
         n_all = np.bincount(row, minlength=n_rows)
-        n_on = np.bincount(row, weights=on[keep].astype(float), minlength=n_rows)
+        n_on = np.bincount(row[on], minlength=n_rows)
         known = np.flatnonzero(n_all >= 2)
         if len(known) < 4:
             return None
@@ -1222,13 +1246,12 @@ class LiquidLevelMeter:
         top (green)."""
         x0, y0, x1, y1 = box
         debug = np.ascontiguousarray(frame.color[y0:y1, x0:x1]).copy()
-        ang = np.linspace(0.0, 2.0 * math.pi, 48)
         rings = [(body, (0, 200, 0))]
         if level is not None:
             rings.insert(0, (level, (0, 90, 255)))
         for height, colour in rings:
             ring = bf.points(
-                np.full_like(ang, height), bf.radius * np.cos(ang), bf.radius * np.sin(ang)
+                np.full_like(_DEBUG_COS, height), bf.radius * _DEBUG_COS, bf.radius * _DEBUG_SIN
             )
             uv = project(frame.intrinsics, ring) - [x0, y0]
             cv2.polylines(debug, [np.round(uv).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
