@@ -451,7 +451,8 @@ class _Rays:
     from its axis, one entry per pixel (row by row), against its cylinders.
 
     ``s_low``: the lowest height (above the table, never below the base) of the ray's chord
-    through the liquid's cylinder (nan where it misses it); ``s_axis``: the height where it
+    through the liquid's cylinder (nan where it misses it); ``height``: the height of its
+    depth's point (a number, meaningless, where not ``valid``); ``s_axis``: the height where it
     passes the axis closest; ``miss``: that closest distance over the radius; ``valid``: the
     pixel has depth; ``on_bottle``: its point lies on or in the bottle (within the radius +
     ``surface_tol``, above the base, below the top); ``before``: it lies nearer than the
@@ -798,19 +799,22 @@ class LiquidLevelMeter:
             runs += [side * band_t, side * grid[(grid > 1.2 * wall) & (grid < 1.5 * wall)]]
             bands.append((band_t, lo, hi))
         t = np.concatenate(runs)
-        # Only the rows searched, start..stop (the lowest third and the body's top within):
-        # every row's steps are its own, so the others need no strip.
+        # Only the rows used: the lowest third (which sides show the wall), then from the
+        # floor to the top searched (where the body ends; the two overlap when the floor is
+        # in the lowest third). Every row's steps are its own, so the rows between need no
+        # strip.
         searched = s[start:stop]
-        k = self._depression_tan(bf, searched)[:, None]
+        n_low = lowest.stop - start
+        used = np.concatenate([np.arange(n_low), np.arange(first - start, stop - start)])
+        k = self._depression_tan(bf, searched)[used, None]
         shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
-        strip = self._strip(frame, bf, searched, t, shift)
+        strip = self._strip(frame, bf, searched[used], t, shift)
         cuts = np.cumsum([0] + [len(run) for run in runs])
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
         edges = _rgb_length(np.diff(strip, axis=1))
-        body_row = np.ones(len(searched), bool)  # rows start..stop
-        faint = np.zeros(len(searched))  # the strongest in-band step of the counted sides
-        lowest_searched = slice(0, lowest.stop - start)  # the lowest third, in those rows
+        body_row = np.ones(len(used) - n_low, bool)  # rows first..stop
+        faint = np.zeros(len(used) - n_low)  # the strongest in-band step of the counted sides
         counted = 0
         for side in (0, 1):
             g_band, g_out = (edges[:, cuts[i] : cuts[i + 1] - 1] for i in (2 * side, 2 * side + 1))
@@ -821,10 +825,9 @@ class LiquidLevelMeter:
             background = _median(g_out, axis=1)
             strength = np.where(inside, g_band.max(axis=1) - background, 0.0)
             edged = strength > self.edge_threshold
-            lowest_edged = edged[lowest_searched]
-            if np.count_nonzero(lowest_edged) / len(lowest_edged) >= 0.4:
-                body_row &= edged
-                faint = np.maximum(faint, strength)
+            if np.count_nonzero(edged[:n_low]) / n_low >= 0.4:
+                body_row &= edged[n_low:]
+                faint = np.maximum(faint, strength[n_low:])
                 counted += 1
         if counted == 0:
             return self.body_fraction * bf.top, False
@@ -836,13 +839,13 @@ class LiquidLevelMeter:
         if stop - first < w:  # the depth level already put the body's top near the top
             return float(s[min(first, len(s) - 1)]), True
         blank = (faint < 0.5 * self.edge_threshold).astype(float)
-        run = np.convolve(blank[first - start :], np.ones(w) / w, mode="valid")
+        run = np.convolve(blank, np.ones(w) / w, mode="valid")
         gaps = np.flatnonzero(run >= 2.0 / 3.0)
         if len(gaps):
             stop = first + int(gaps[0]) + w // 2
         if stop - first < 4:
             return float(s[min(first, len(s) - 1)]), True
-        k_split, _ = _step_split(body_row[first - start : stop - start])
+        k_split, _ = _step_split(body_row[: stop - first])
         return float(s[first + max(k_split - 1, 0)]), True
 
     def _profile(
@@ -1019,11 +1022,12 @@ class LiquidLevelMeter:
 
         da, dl = along(bf.away), along(bf.lateral)
         fa, fl, fu = bf.foot @ bf.away, bf.foot @ bf.lateral, bf.foot @ bf.up
-        # Horizontal offset from the axis along the ray: (z da - fa, z dl - fl).
+        # Horizontal offset from the axis along the ray: (z da - fa, z dl - fl), its square
+        # qa z^2 - 2 half_b z + c0.
         qa = da**2 + dl**2
-        qb = -2.0 * (da * fa + dl * fl)
+        half_b = da * fa + dl * fl
         # The ray's closest approach to the axis (horizontally), as a fraction of the radius.
-        z_near = -qb / (2.0 * qa)
+        z_near = half_b / qa
         off_a, off_l = z_near * da - fa, z_near * dl - fl
         # Every use of a ray asks for one passing near the axis: the rest are dropped here,
         # before the per-ray work (the same rays, in the same order, as over the whole box).
@@ -1033,10 +1037,12 @@ class LiquidLevelMeter:
         miss = np.hypot(off_a[maybe], off_l[maybe]) / bf.radius
         keep = miss < _RAY_MISS
         near, miss = maybe[keep], miss[keep]
-        da, dl, qa, qb, z_near = (a[near] for a in (da, dl, qa, qb, z_near))
+        da, dl, qa, half_b, z_near = (a[near] for a in (da, dl, qa, half_b, z_near))
         du = along(bf.up)[near]
         z = frame.depth[y0:y1:stride, x0:x1:stride].ravel()[near].astype(float)
-        qb2, qa2, qa4 = qb**2, 2.0 * qa, 4.0 * qa
+        # The chord equation qa z^2 + qb z + c0 = radius^2 with -qb = 2 half_b.
+        neg_qb = 2.0 * half_b
+        qb2, qa2, qa4 = neg_qb**2, 2.0 * qa, 4.0 * qa
         c0 = fa**2 + fl**2
 
         def chord(radius: float) -> tuple[Array, NDArray[np.bool_]]:
@@ -1046,14 +1052,14 @@ class LiquidLevelMeter:
 
         sq, hit = chord(bf.radius)
         # The outer cylinder's front (inf where the ray misses it).
-        front = np.where(hit, (-qb - sq) / qa2, np.inf)
+        front = np.where(hit, (neg_qb - sq) / qa2, np.inf)
         sq, hit_liq = chord(r_liq)
-        zl_in = np.where(hit_liq, (-qb - sq) / qa2, np.nan)
-        zl_out = np.where(hit_liq, (-qb + sq) / qa2, np.nan)
-        h_in, h_out = zl_in * du - fu, zl_out * du - fu
-        s_low = np.maximum(np.fmin(h_in, h_out), self.base)
+        # The chord's lower end: its near end on a ray rising away from the camera (du >= 0),
+        # else its far end (the lower of the two heights, as np.fmin of both would give).
+        z_low = (neg_qb - np.copysign(sq, du)) / qa2
+        s_low = np.maximum(np.where(hit_liq, z_low * du - fu, np.nan), self.base)
         valid = z > 0
-        height = np.where(valid, z * du - fu, np.nan)
+        height = z * du - fu
         on_bottle = (
             valid
             & _hypot_below(z * da - fa, z * dl - fl, bf.radius + self.surface_tol)
