@@ -148,8 +148,12 @@ class GeometricDetector:
     ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup; not a
     cluster with no round wall whose sides (below 0.75 x its top) lie within
     ``flat_face_rms`` of one line over at least 1.5 x ``clear_min_radius`` of width: one
-    planar face, a box of shiny metal or foil that returned no depth. Only
-    every ``pixel_stride``-th pixel and row is used, and circle fits use at most
+    planar face, a box of shiny metal or foil that returned no depth. (8) A clear cup
+    seen only in pieces (patches too small for a cluster, or a clear piece fitted with a
+    circle under ``clear_refit_radius``) is one cup of ``fragment_radius`` behind them
+    when they group together and its front returns no depth over ``clear_share`` of it
+    (:meth:`_clear_pieces`; ``fragment_min_points = 0`` turns this off). Only every
+    ``pixel_stride``-th pixel and row is used, and circle fits use at most
     ``max_fit_points`` points.
 
     The shape rules. A bottle: at least ``bottle_min_height`` tall, or a neck (the top
@@ -251,6 +255,10 @@ class GeometricDetector:
         hidden_margin: float = 0.06,
         bottle_min_radius: float = 0.0,
         bottle_prior_radius: float = 0.030,
+        fragment_min_points: int = 20,
+        fragment_radius: float = 0.035,
+        fragment_clearance: float = 0.01,
+        clear_refit_radius: float = 0.028,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
@@ -274,6 +282,10 @@ class GeometricDetector:
         self.hidden_margin = float(hidden_margin)
         self.bottle_min_radius = float(bottle_min_radius)
         self.bottle_prior_radius = float(bottle_prior_radius)
+        self.fragment_min_points = int(fragment_min_points)
+        self.fragment_radius = float(fragment_radius)
+        self.fragment_clearance = float(fragment_clearance)
+        self.clear_refit_radius = float(clear_refit_radius)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
         self.max_range = float(max_range)
@@ -342,7 +354,7 @@ class GeometricDetector:
         p_cam = rays[idx] * z[idx, None]
         keep = self._self_filter(p_cam, T_base_cam, context.joint_positions)
         idx, p_cam = idx[keep], p_cam[keep]
-        if len(idx) < self.min_points:
+        if len(idx) < min(self.min_points, max(self.fragment_min_points, 1)):
             return []
         e1, e2 = self._plane_axes(normal)
         uw = np.column_stack([p_cam @ e1, p_cam @ e2])
@@ -362,9 +374,28 @@ class GeometricDetector:
             e1,
             e2,
         )
-        detections = [f[0] for f in found if f is not None]
-        planar = [f[1] for f in found if f is not None]
-        return self._clear_containers(frame, detections, planar, normal, offset, e1, e2)
+        kept = [k for k, f in enumerate(found) if f is not None]
+        detections = [found[k][0] for k in kept]  # type: ignore[index]
+        planar = [found[k][1] for k in kept]  # type: ignore[index]
+        detections, shares = self._clear_containers(
+            frame, detections, planar, normal, offset, e1, e2
+        )
+        if self.fragment_min_points <= 0:
+            return detections
+        return self._clear_pieces(
+            frame,
+            z,
+            idx,
+            uw,
+            h[idx],
+            detections,
+            [groups[k][0] for k in kept],
+            shares,
+            normal,
+            offset,
+            e1,
+            e2,
+        )
 
     # ---------------------------------------------------------------- steps
 
@@ -436,9 +467,10 @@ class GeometricDetector:
         e1 /= np.linalg.norm(e1)
         return e1, cross3(normal, e1)
 
-    def _cluster(self, uw: Array) -> NDArray[np.int32]:
-        """Connected-component label (0 = none) per point, from a grid in the table plane."""
-        cell = np.floor((uw - uw.min(axis=0)) / self.grid_cell).astype(np.int64)
+    def _cluster(self, uw: Array, grid_cell: float | None = None) -> NDArray[np.int32]:
+        """Connected-component label (0 = none) per point, from a grid in the table plane
+        (cells of ``grid_cell``, by default the detector's)."""
+        cell = np.floor((uw - uw.min(axis=0)) / (grid_cell or self.grid_cell)).astype(np.int64)
         shape = cell.max(axis=0) + 3
         grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
         grid[cell[:, 1] + 1, cell[:, 0] + 1] = 1
@@ -693,16 +725,18 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> list[Detection]:
+    ) -> tuple[list[Detection], list[float]]:
         """Detections not labelled bottle that the depth camera mostly cannot see (a missing
         share of at least ``clear_share`` over their front surface, see
         :meth:`_see_through`, nearest first, leaving out the boxes of nearer clear objects,
         which blank what is behind them) and at least ``clear_min_radius`` in radius (not a
         fragment of a clear object's sparse depth): clear plastic or
-        glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl."""
-        if self.clear_share >= 1.0:
-            return detections
+        glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl.
+        Returns the detections and each one's missing share."""
         out = list(detections)
+        shares = [0.0] * len(out)
+        if self.clear_share >= 1.0:
+            return out, shares
         clear_boxes: list[tuple[float, float, float, float]] = []
         for i in np.argsort([d.center_cam[2] for d in detections]):  # nearest first
             det = out[i]
@@ -711,6 +745,7 @@ class GeometricDetector:
             share = self._see_through(
                 frame, center, det.radius, det.height, normal, offset, e1, e2, clear_boxes
             )
+            shares[i] = share
             if share < self.clear_share:
                 continue
             clear_boxes.append(det.box)
@@ -721,7 +756,106 @@ class GeometricDetector:
                 if label == "bottle":
                     box = bottle_box(frame.intrinsics, foot, normal, det.radius, det.height)
                 out[i] = dataclasses.replace(det, label=label, box=box)
-        return out
+        return out, shares
+
+    def _clear_pieces(
+        self,
+        frame: RGBDFrame,
+        z: Array,
+        idx: NDArray[np.intp],
+        uw: Array,
+        h: Array,
+        detections: list[Detection],
+        members: Sequence[NDArray[np.intp]],
+        shares: Sequence[float],
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> list[Detection]:
+        """Clear containers seen only in pieces: a D435 returns no depth over half of clear
+        plastic and the surface behind it over a third (ClearGrasp's real frames), so what
+        is left of a clear cup is scattered patches, each too small for a cluster, or a
+        piece that was fitted as an object of its own with too small a circle.
+
+        The pieces: detections not labelled bottle whose front returns no depth over at least
+        ``clear_share`` of it (:meth:`_clear_containers`) and whose circle is narrower than
+        ``clear_refit_radius``. Their points and the candidate points no
+        cluster took (``members`` are the detections' points in ``uw``, ``idx`` each point's
+        pixel on the strided grid, ``h`` its height), leaving out those within
+        ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
+        are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
+        no taller than a cup, is taken for the front of a container of radius
+        ``fragment_radius`` (scattered patches do not fix a radius), its centre behind them
+        (:func:`_behind_front`), its height their top. It replaces the group's pieces when it
+        stands ``fragment_clearance`` clear of every other detection and returns no depth
+        over at least ``clear_share`` of its front (nearer objects' boxes left out): a clear
+        cup. Its centre is good to a
+        centimetre or two: enough to count it and to keep a grasp clear of it. Taller groups
+        are left as they were: a bottle is something the tasks grasp.
+        """
+        pieces = [
+            k
+            for k, d in enumerate(detections)
+            if d.label != "bottle"
+            and shares[k] >= self.clear_share
+            and d.radius < self.clear_refit_radius
+        ]
+        plane = np.column_stack([e1, e2])
+        feet = [(d.center_cam @ plane, d.radius) for d in detections]
+        taken = np.zeros(len(uw), dtype=bool)
+        for m in members:
+            taken[m] = True
+        solid = [k for k in range(len(detections)) if k not in pieces]
+        pool = ~taken
+        for k in solid:  # a detection's remnants (edges, a grazing face) are its own
+            pool &= _radial(uw, feet[k][0]) >= feet[k][1] + self.fragment_clearance
+        owner = np.full(len(uw), -1)
+        for k in pieces:
+            pool[members[k]] = True
+            owner[members[k]] = k
+        which = np.flatnonzero(pool)
+        if len(which) < self.fragment_min_points:
+            return detections
+        labels = self._cluster(uw[which], 2.0 * self.grid_cell)
+        radius = self.fragment_radius
+        replaced: set[int] = set()
+        added: list[Detection] = []
+        for label in np.unique(labels[labels > 0]):
+            group = which[labels == label]
+            top = self._top(h[group])
+            if len(group) < self.fragment_min_points or not (
+                self.min_object_height <= top < self.bottle_min_height
+            ):
+                continue
+            center = _behind_front(uw[group], radius)
+            gap = radius + self.fragment_clearance
+            if any(math.hypot(*(center - feet[k][0])) < feet[k][1] + gap for k in solid):
+                continue
+            if any(math.hypot(*(center - c)) < r + gap for c, r in feet[len(detections) :]):
+                continue
+            far = math.hypot(*center)
+            nearer = [detections[k].box for k in solid if math.hypot(*feet[k][0]) < far]
+            share = self._see_through(frame, center, radius, top, normal, offset, e1, e2, nearer)
+            if share < self.clear_share:
+                continue
+            foot_cam = center[0] * e1 + center[1] * e2 - offset * normal
+            center_cam = foot_cam + 0.5 * top * normal
+            added.append(
+                Detection(
+                    label="cup",
+                    score=share * min(1.0, len(group) / self.full_support_points),
+                    box=cylinder_box(frame.intrinsics, center_cam, normal, radius, top),
+                    center_cam=center_cam,
+                    size=np.array([2.0 * radius, top, 2.0 * radius]),
+                    radius=radius,
+                    height=top,
+                    axis_cam=normal.copy(),
+                )
+            )
+            feet.append((center, radius))
+            replaced.update(int(k) for k in np.unique(owner[group]) if k >= 0)
+        return [d for k, d in enumerate(detections) if k not in replaced] + added
 
     def _see_through(
         self,
@@ -1217,6 +1351,20 @@ def _components(joins: NDArray[np.bool_]) -> NDArray[np.intp]:
         if ri != rj:
             parent[max(ri, rj)] = min(ri, rj)
     return np.array([root(i) for i in range(len(joins))], dtype=np.intp)
+
+
+def _behind_front(points: Array, radius: float) -> Array:
+    """Centre (u, w) of a cylinder of ``radius`` whose near side ``points`` (N, 2) are scattered
+    over, seen from the camera at the origin: on the bearing half-way between the outermost
+    points' bearings, 0.7 x the radius beyond their median range (a front arc's points lie
+    0.64-0.79 x the radius in front of the centre: the mean of cos over it, uniform or
+    foreshortened). Bearings and a median, not a circle fit: of what a D435 returns in front
+    of clear plastic's background, over a third is centimetres off (ClearGrasp's real
+    frames), while the pixels' columns are where the object is."""
+    bearings = np.arctan2(points[:, 1], points[:, 0])
+    bearing = 0.5 * float(bearings.min() + bearings.max())
+    distance = float(np.median(np.hypot(points[:, 0], points[:, 1]))) + 0.7 * radius
+    return distance * np.array([math.cos(bearing), math.sin(bearing)])
 
 
 def _radial(uw: Array, center: Array) -> Array:
