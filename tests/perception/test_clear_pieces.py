@@ -27,7 +27,7 @@ def _table_point(u: float, v: float) -> np.ndarray:
 FOOT = _table_point(340.0, 330.0)
 
 
-def _table_and_cup() -> tuple[np.ndarray, np.ndarray]:
+def _table_and_cup(radius: float = RADIUS) -> tuple[np.ndarray, np.ndarray]:
     """Exact depth of the table alone and of the cup's near wall (0 where it is not)."""
     u, v = np.meshgrid(np.arange(INTR.width), np.arange(INTR.height))
     rays = np.stack([(u - INTR.ppx) / INTR.fx, (v - INTR.ppy) / INTR.fy, np.ones(u.shape)], -1)
@@ -40,18 +40,18 @@ def _table_and_cup() -> tuple[np.ndarray, np.ndarray]:
     f_o = FOOT - (FOOT @ UP) * UP
     a = np.einsum("...i,...i", r_o, r_o)
     b = r_o @ f_o
-    disc = b**2 - a * (f_o @ f_o - RADIUS**2)
+    disc = b**2 - a * (f_o @ f_o - radius**2)
     t = np.where(disc > 0, (b - np.sqrt(np.maximum(disc, 0.0))) / a, 0.0)
     h = t * along + HEIGHT  # height above the table of the hit
     on = (disc > 0) & (h >= 0.0) & (h <= CUP_HEIGHT)
     return table, np.where(on, t, 0.0)
 
 
-def _frame(missing: float, behind: float) -> RGBDFrame:
+def _frame(missing: float, behind: float, radius: float = RADIUS) -> RGBDFrame:
     """The cup's wall in 6-pixel blocks: no depth on ``missing`` of them, the table behind
     on ``behind``, the true wall on the rest (each block's kind drawn at random)."""
     rng = np.random.default_rng(5)
-    table, cup = _table_and_cup()
+    table, cup = _table_and_cup(radius)
     draws = rng.uniform(size=(INTR.height // 6 + 1, INTR.width // 6 + 1))
     kind = np.kron(draws, np.ones((6, 6)))[: INTR.height, : INTR.width]
     depth = table.copy()

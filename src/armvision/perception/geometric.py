@@ -259,6 +259,8 @@ class GeometricDetector:
         fragment_radius: float = 0.035,
         fragment_clearance: float = 0.01,
         clear_refit_radius: float = 0.028,
+        fragment_min_height: float = 0.055,
+        fragment_max_span: float = 2.5,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
@@ -286,6 +288,8 @@ class GeometricDetector:
         self.fragment_radius = float(fragment_radius)
         self.fragment_clearance = float(fragment_clearance)
         self.clear_refit_radius = float(clear_refit_radius)
+        self.fragment_min_height = float(fragment_min_height)
+        self.fragment_max_span = float(fragment_max_span)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
         self.max_range = float(max_range)
@@ -785,7 +789,10 @@ class GeometricDetector:
         pixel on the strided grid, ``h`` its height), leaving out those within
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
-        no taller than a cup, is taken for the front of a container of radius
+        its top from ``fragment_min_height`` (lower: clear plastic lying on its side, on
+        ClearGrasp's frames) to below ``bottle_min_height``, its bearings spanning no more
+        than ``fragment_max_span`` x the radius at its range (wider: a surface, or something
+        lying), is taken for the front of a container of radius
         ``fragment_radius`` (scattered patches do not fix a radius), its centre behind them
         (:func:`_behind_front`), its height their top. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
@@ -825,9 +832,13 @@ class GeometricDetector:
             group = which[labels == label]
             top = self._top(h[group])
             if len(group) < self.fragment_min_points or not (
-                self.min_object_height <= top < self.bottle_min_height
+                self.fragment_min_height <= top < self.bottle_min_height
             ):
                 continue
+            bearings = np.arctan2(uw[group, 1], uw[group, 0])
+            span = float(bearings.max() - bearings.min()) * float(np.median(np.hypot(*uw[group].T)))
+            if span > self.fragment_max_span * radius:
+                continue  # wider than one cup's front: a surface, or something lying
             center = _behind_front(uw[group], radius)
             gap = radius + self.fragment_clearance
             if any(math.hypot(*(center - feet[k][0])) < feet[k][1] + gap for k in solid):
