@@ -371,3 +371,31 @@ def test_a_bottles_neck_above_a_nearer_can_stack_is_a_bottle() -> None:
         _blank_frame(), uw, h, np.full(len(h), 0.6), *_level_plane()
     )
     assert fitted is not None and fitted[0].label == "other"
+
+
+def test_the_circle_most_points_agree_on_is_the_mugs_not_its_handles() -> None:
+    """A mug with its handle toward the camera (a rendered mug in clutter pulled the wall fit
+    to a 4.7 m circle): the body's front arc and a handle 18 mm out over 6 cm of width. The
+    consensus circle is the body's; a box's corner (two faces at a right angle, 8 cm each)
+    gives none."""
+    body = _ring(0.032, 0.005, 0.095, 400)
+    s = RNG.uniform(0.0, math.pi, 150)
+    handle = np.column_stack(
+        [
+            RNG.uniform(-0.03, 0.03, 150),
+            0.6 - 0.032 - 0.018 * np.sin(s) + RNG.normal(0.0, 0.0008, 150),
+            0.05 + 0.03 * np.cos(s),
+        ]
+    )
+    uw, _ = _cluster(body, handle)
+    found = GeometricDetector()._consensus_circle(uw, 0.001)
+    assert found is not None
+    center, radius, _, _ = found
+    assert math.hypot(center[0], center[1] - 0.6) < 0.003 and abs(radius - 0.032) < 0.002
+    t = RNG.uniform(0.0, 0.08, 400)
+    corner = np.where(
+        (np.arange(400) % 2 == 0)[:, None],
+        np.column_stack([-t, 0.6 - t]),
+        np.column_stack([t, 0.6 - t]),
+    ) / math.sqrt(2.0) + RNG.normal(0.0, 0.0008, (400, 2))
+    assert GeometricDetector()._consensus_circle(corner, 0.001) is None

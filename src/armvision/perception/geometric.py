@@ -261,6 +261,8 @@ class GeometricDetector:
         clear_refit_radius: float = 0.028,
         fragment_min_height: float = 0.055,
         fragment_max_span: float = 2.5,
+        consensus_fraction: float = 0.6,
+        consensus_draws: int = 64,
         seed: int = 0,
     ) -> None:
         self.edge_jump = float(edge_jump)
@@ -290,6 +292,8 @@ class GeometricDetector:
         self.clear_refit_radius = float(clear_refit_radius)
         self.fragment_min_height = float(fragment_min_height)
         self.fragment_max_span = float(fragment_max_span)
+        self.consensus_fraction = float(consensus_fraction)
+        self.consensus_draws = int(consensus_draws)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
         self.max_range = float(max_range)
@@ -582,11 +586,16 @@ class GeometricDetector:
             circles[k] = fit
         tops = [self._top(c.h) for c in clusters]
         # A tall cluster without a round wall may be a bottle joined at its foot by a lower
-        # object's rim (a cup's far wall a centimetre in front of it): its upper part's.
+        # object's rim (a cup's far wall a centimetre in front of it): its upper part's; any
+        # other, the circle most of its points agree on (a mug's handle pulled the fit off).
         for k, c in enumerate(clusters):
             circle = circles[k]
             if circle is None or not self._radius_ok(circle[1]):
-                circles[k] = self._upper_circle(c.uw, c.h, tops[k], sigmas[k]) or circle
+                circles[k] = (
+                    self._upper_circle(c.uw, c.h, tops[k], sigmas[k])
+                    or self._consensus_circle(c.uw, sigmas[k])
+                    or circle
+                )
         shapes = [
             self._shape(frame, c.uw, c.h, tops[k], circles[k], normal, offset, e1, e2)
             for k, c in enumerate(clusters)
@@ -959,6 +968,43 @@ class GeometricDetector:
         if fit is None or not self.radius_range[0] <= fit[1] <= self.upper_max_radius:
             return None
         return _on_all(uw, upper, fit)
+
+    def _consensus_circle(self, uw: Array, sigma: float) -> _Circle | None:
+        """The wall circle of the points most of the cluster agrees on, for a cluster whose
+        own fit found no round wall: a mug whose handle faces the camera pulls the fit to a
+        line. Circles through 3 points drawn at random (``consensus_draws``, a fixed seed:
+        the same frame gives the same answer), at least ``clear_min_radius`` in radius (not a
+        handle's own curve), the one with the most points within 3 sigma (at least 3 mm)
+        kept if they are ``consensus_fraction`` of the cluster; then fitted again
+        (:meth:`_wall_circle`) to those points alone, its radius in ``radius_range``."""
+        if self.consensus_fraction >= 1.0 or len(uw) < self.min_points:
+            return None
+        rng = np.random.default_rng(len(uw))
+        picks = rng.integers(0, len(uw), size=(self.consensus_draws, 3))
+        a, b, c = uw[picks[:, 0]], uw[picks[:, 1]], uw[picks[:, 2]]
+        # Circumcentres: the perpendicular bisectors of ab and ac meet there.
+        ab, ac = b - a, c - a
+        det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+        ok = np.abs(det) > 1e-12
+        ab2, ac2 = (ab**2).sum(axis=1), (ac**2).sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ox = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
+            oy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
+        radii = np.hypot(ox, oy)
+        ok &= (radii >= self.clear_min_radius) & (radii <= self.radius_range[1])
+        if not ok.any():
+            return None
+        centers = a[ok] + np.column_stack([ox[ok], oy[ok]])
+        dist = np.hypot(uw[None, :, 0] - centers[:, None, 0], uw[None, :, 1] - centers[:, None, 1])
+        inliers = np.abs(dist - radii[ok][:, None]) < self.contained_margin
+        best = int(np.argmax(inliers.sum(axis=1)))
+        agree = inliers[best]
+        if agree.mean() < self.consensus_fraction:
+            return None
+        fit = self._wall_circle(uw[agree], sigma)
+        if fit is None or not self._radius_ok(fit[1]):
+            return None
+        return _on_all(uw, agree, fit)
 
     def _top(self, h: Array) -> float:
         """A cluster's height: its ``top_rank``-th highest point (above a few flying pixels)."""
