@@ -996,7 +996,7 @@ class GeometricDetector:
             return None
         centers = a[ok] + np.column_stack([ox[ok], oy[ok]])
         dist = np.hypot(uw[None, :, 0] - centers[:, None, 0], uw[None, :, 1] - centers[:, None, 1])
-        inliers = np.abs(dist - radii[ok][:, None]) < self.contained_margin
+        inliers = np.abs(dist - radii[ok][:, None]) < max(3.0 * sigma, 0.003)
         best = int(np.argmax(inliers.sum(axis=1)))
         agree = inliers[best]
         if agree.mean() < self.consensus_fraction:
