@@ -255,6 +255,11 @@ def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
     return (np.take(part, k - 1, axis=axis) + np.take(part, k, axis=axis)) / 2
 
 
+def _clamp(x: float, lo: float, hi: float) -> float:
+    """``float(np.clip(x, lo, hi))`` of one number, without np.clip's overhead."""
+    return float(min(max(x, lo), hi))
+
+
 def _median_rgb(pixels: NDArray[np.number]) -> tuple[int, int, int]:
     """The per-channel median of RGB pixels (..., 3), as integers."""
     r, g, b = (int(c) for c in np.median(pixels.reshape(-1, 3), axis=0))
@@ -406,10 +411,15 @@ def bottle_outline(
         return a[..., None, :, :] if a.ndim >= 2 else a
 
     # All three rings at once, (..., ring, point, xyz): foot + (frac h) up + (scale r) ring.
-    frac = np.array([0.0, body_fraction, 1.0])[:, None, None]
-    scale = np.array([1.0, 1.0, CAP_RADIUS_FRACTION])[:, None, None]
+    frac, scale = (a[:, None, None] for a in _outline_rings(body_fraction))
     pts = ring_axis(foot) + (frac * ring_axis(height)) * up + (scale * ring_axis(radius)) * ring
     return pts.reshape(*pts.shape[:-3], -1, 3)
+
+
+def _outline_rings(body_fraction: float) -> tuple[Array, Array]:
+    """The heights of :func:`bottle_outline`'s three rings (foot, shoulder, top) as shares of
+    the bottle's height, and their radii as shares of its radius."""
+    return np.array([0.0, body_fraction, 1.0]), np.array([1.0, 1.0, CAP_RADIUS_FRACTION])
 
 
 @dataclass(frozen=True)
@@ -682,15 +692,19 @@ class LiquidLevelMeter:
         e1, e2, ring = self._table_basis(up)
         target = np.asarray(box, dtype=float)
         mask = np.array([free[0], free[0], free[1], free[2]])
+        # bottle_outline's points, with the coordinate first: (xyz, M, ring, point).
+        frac, scale = (a[:, None] for a in _outline_rings(body_fraction))
+        foot3, e1_3, e2_3, up3 = (a[:, None, None, None] for a in (foot, e1, e2, up))
+        ring3 = ring.T[:, None, None, :]
 
         def bboxes(params: Array) -> Array:
             """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection, as
             :func:`~armvision.camera.frames.pixel_box` bounds them."""
             a, b, r, h = params.T[:, :, None, None]
-            centre = foot + a * e1 + b * e2  # (M, 1, 3)
-            pts = bottle_outline(centre, up, r, h, body_fraction, ring)  # (M, 72, 3)
-            u, v = project_xyz(intr, pts[..., 0], pts[..., 1], pts[..., 2])
-            return np.stack([u.min(1), v.min(1), u.max(1) + 1, v.max(1) + 1], axis=1)
+            centre = foot3 + a * e1_3 + b * e2_3
+            x, y, z = centre + (frac * h) * up3 + (scale * r) * ring3
+            uv = np.stack(project_xyz(intr, x, y, z), axis=1).reshape(len(params), 2, -1)
+            return np.concatenate([uv.min(2), uv.max(2) + 1], axis=1)
 
         p = np.array([0.0, 0.0, radius, top])
         eps = 1e-4
@@ -699,9 +713,12 @@ class LiquidLevelMeter:
         steps = np.zeros((1 + 2 * len(idx), 4))
         steps[1 + np.arange(len(idx)), idx] = eps
         steps[1 + len(idx) + np.arange(len(idx)), idx] = -eps
-        for _ in range(8):
+        converged = False
+        for iteration in range(9):  # at most 8 steps; the last box is the final p's
             boxes = bboxes(p + steps)
             res = boxes[0] - target
+            if converged or iteration == 8:
+                break
             J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
             if len(idx) == 1:  # the radius alone (a detector's box): lstsq in closed form
                 jj = float(J[:, 0] @ J[:, 0])
@@ -711,24 +728,18 @@ class LiquidLevelMeter:
             # A bad first guess must not overshoot (np.clip's bounds, without its overhead).
             p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)
             p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
-            if np.max(np.abs(delta)) < 1e-5:
-                break
-        misfit = float(np.max(np.abs(bboxes(p[None, :])[0] - target)))
+            converged = bool(np.max(np.abs(delta)) < 1e-5)
+        misfit = float(np.max(np.abs(res)))
         return foot + p[0] * e1 + p[1] * e2, float(p[2]), float(p[3]), misfit
 
     def _strip(
         self, frame: RGBDFrame, bf: _Frame3D, s: Array, t: Array, shift: Array | None = None
     ) -> NDArray[np.float32]:
         """Colour (len(s), len(t), 3) sampled on the axis plane; rows ``s`` up, shift per cell."""
-        ss = s[:, None] + (0.0 if shift is None else shift)
-        tt = t[None, :]
-        foot, up, lateral = bf.foot, bf.up, bf.lateral
-        u, v = project_xyz(
-            frame.intrinsics,
-            foot[0] + ss * up[0] + tt * lateral[0],
-            foot[1] + ss * up[1] + tt * lateral[1],
-            foot[2] + ss * up[2] + tt * lateral[2],
-        )
+        ss = s[:, None] if shift is None else s[:, None] + shift
+        foot, up, lateral = (a[:, None, None] for a in (bf.foot, bf.up, bf.lateral))
+        x, y, z = foot + ss * up + t * lateral  # (xyz, row, column)
+        u, v = project_xyz(frame.intrinsics, x, y, z)
         map_x = u.astype(np.float32)
         map_y = v.astype(np.float32)
         return cv2.remap(
@@ -892,7 +903,7 @@ class LiquidLevelMeter:
                 body, shoulder_found = self._body_top(frame, bf, s, floor, search, empty_from)
         r = bf.radius
         r_liq = max(bf.radius - self.wall, 0.5 * bf.radius)
-        body = float(np.clip(body, self.base + 0.01, bf.top))
+        body = _clamp(body, self.base + 0.01, bf.top)
         if bf.misfit_px > self.max_misfit * (x1 - x0):
             # No upright bottle on the table found projects onto the box (the table found is
             # another surface, or the box holds something else): nothing to measure in.
@@ -946,8 +957,8 @@ class LiquidLevelMeter:
             level, confidence = level_c, 0.5 * q_c
         if not shoulder_found:
             confidence *= 0.7
-        level = float(np.clip(level, self.base, body))
-        fill = float(np.clip((level - self.base) / (body - self.base), 0.0, 1.0))
+        level = _clamp(level, self.base, body)
+        fill = _clamp((level - self.base) / (body - self.base), 0.0, 1.0)
         level_px = project(frame.intrinsics, bf.points(np.array([level, body]), 0.0))
         below = inner[(s_body < level - 0.003) & (s_body > self.base)]
         colour = _median_rgb(below) if fill > 0.02 and below.size else None
@@ -955,7 +966,7 @@ class LiquidLevelMeter:
         return LiquidLevel(
             fill=fill,
             level_row=float(level_px[0, 1]),
-            confidence=float(np.clip(confidence, 0.0, 1.0)),
+            confidence=_clamp(confidence, 0.0, 1.0),
             colour=colour,
             method="profile",
             debug=debug,
@@ -1013,14 +1024,13 @@ class LiquidLevelMeter:
         x0, y0, x1, y1 = box
         intr = frame.intrinsics
         # The ray (x, y, 1) of pixel (u, v), so that depth z is its parameter; x and y are
-        # separable, so its components along the bottle's axes are sums of a row and a column.
+        # separable, so its components along the bottle's axes are sums of a row and a column:
+        # along away, lateral and up at once, (3, pixels).
         x = (np.arange(x0, x1, stride, dtype=float) - intr.ppx) / intr.fx
         y = (np.arange(y0, y1, stride, dtype=float) - intr.ppy) / intr.fy
-
-        def along(axis: Array) -> Array:
-            return (y[:, None] * axis[1] + (x[None, :] * axis[0] + axis[2])).ravel()
-
-        da, dl = along(bf.away), along(bf.lateral)
+        axes = np.stack([bf.away, bf.lateral, bf.up])[:, :, None, None]
+        d = (y[:, None] * axes[:, 1] + (x * axes[:, 0] + axes[:, 2])).reshape(3, -1)
+        da, dl = d[0], d[1]
         fa, fl, fu = bf.foot @ bf.away, bf.foot @ bf.lateral, bf.foot @ bf.up
         # Horizontal offset from the axis along the ray: (z da - fa, z dl - fl), its square
         # qa z^2 - 2 half_b z + c0.
@@ -1034,29 +1044,26 @@ class LiquidLevelMeter:
         # np.hypot is slow (~12 ns a value): a superset by squares first, then it on those.
         reach = _RAY_MISS * bf.radius
         maybe = np.flatnonzero(off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK))
-        miss = np.hypot(off_a[maybe], off_l[maybe]) / bf.radius
-        keep = miss < _RAY_MISS
-        near, miss = maybe[keep], miss[keep]
-        da, dl, qa, half_b, z_near = (a[near] for a in (da, dl, qa, half_b, z_near))
-        du = along(bf.up)[near]
-        z = frame.depth[y0:y1:stride, x0:x1:stride].ravel()[near].astype(float)
-        # The chord equation qa z^2 + qb z + c0 = radius^2 with -qb = 2 half_b.
+        # (Gathers by ndarray.take: several times faster than fancy or boolean indexing.)
+        miss = np.hypot(off_a.take(maybe), off_l.take(maybe)) / bf.radius
+        keep = np.flatnonzero(miss < _RAY_MISS)
+        near, miss = maybe.take(keep), miss.take(keep)
+        da, dl, du = d.take(near, axis=1)
+        qa, half_b, z_near = qa.take(near), half_b.take(near), z_near.take(near)
+        z = frame.depth[y0:y1:stride, x0:x1:stride].ravel().take(near).astype(float)
+        # The chord equation qa z^2 + qb z + c0 = radius^2 with -qb = 2 half_b, for the outer
+        # cylinder and the liquid's at once: the root of its discriminant, and hit.
         neg_qb = 2.0 * half_b
         qb2, qa2, qa4 = neg_qb**2, 2.0 * qa, 4.0 * qa
         c0 = fa**2 + fl**2
-
-        def chord(radius: float) -> tuple[Array, NDArray[np.bool_]]:
-            """The root of the ray's chord equation with a cylinder of ``radius``, and hit."""
-            disc = qb2 - qa4 * (c0 - radius**2)
-            return np.sqrt(np.maximum(disc, 0.0)), disc > 0
-
-        sq, hit = chord(bf.radius)
+        disc = qb2 - qa4 * (c0 - np.array([[bf.radius], [r_liq]]) ** 2)
+        sq, (hit, hit_liq) = np.sqrt(np.maximum(disc, 0.0)), disc > 0
         # The outer cylinder's front (inf where the ray misses it).
-        front = np.where(hit, (neg_qb - sq) / qa2, np.inf)
-        sq, hit_liq = chord(r_liq)
-        # The chord's lower end: its near end on a ray rising away from the camera (du >= 0),
-        # else its far end (the lower of the two heights, as np.fmin of both would give).
-        z_low = (neg_qb - np.copysign(sq, du)) / qa2
+        front = np.where(hit, (neg_qb - sq[0]) / qa2, np.inf)
+        # The liquid chord's lower end: its near end on a ray rising away from the camera
+        # (du >= 0), else its far end (the lower of the two heights, as np.fmin of both
+        # would give).
+        z_low = (neg_qb - np.copysign(sq[1], du)) / qa2
         s_low = np.maximum(np.where(hit_liq, z_low * du - fu, np.nan), self.base)
         valid = z > 0
         height = z * du - fu
@@ -1251,16 +1258,21 @@ class LiquidLevelMeter:
         """The box crop with the liquid surface (ellipse, blue; none when unknown) and the body
         top (green)."""
         x0, y0, x1, y1 = box
-        debug = np.ascontiguousarray(frame.color[y0:y1, x0:x1]).copy()
-        rings = [(body, (0, 200, 0))]
+        debug = frame.color[y0:y1, x0:x1].copy()  # C-contiguous, for OpenCV to draw on
+        heights, colours = [body], [(0, 200, 0)]
         if level is not None:
-            rings.insert(0, (level, (0, 90, 255)))
-        for height, colour in rings:
-            ring = bf.points(
-                np.full_like(_DEBUG_COS, height), bf.radius * _DEBUG_COS, bf.radius * _DEBUG_SIN
-            )
-            uv = project(frame.intrinsics, ring) - [x0, y0]
-            cv2.polylines(debug, [np.round(uv).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
+            heights, colours = [level, body], [(0, 90, 255), (0, 200, 0)]
+        # Every ring in one projection: (ring, angle, xyz).
+        rings = bf.points(
+            np.repeat(np.array(heights)[:, None], len(_DEBUG_COS), axis=1),
+            bf.radius * _DEBUG_COS,
+            bf.radius * _DEBUG_SIN,
+        )
+        uv = project(frame.intrinsics, rings.reshape(-1, 3)) - [x0, y0]
+        for ring_px, colour in zip(
+            np.round(uv).astype(np.int32).reshape(len(heights), -1, 2), colours
+        ):
+            cv2.polylines(debug, [ring_px], True, colour, 1, cv2.LINE_AA)
         text = "unknown" if fill is None else f"{100 * fill:.0f}%"
         cv2.putText(debug, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 0, 0), 1)
         return debug
