@@ -1,9 +1,13 @@
-"""Shared by the detector tests: a scene of placed objects rendered once and detected."""
+"""Shared by the detector tests: a scene of placed objects rendered once and detected, and a
+synthetic bench whose exact depth is known by construction."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import Config
 from armvision.geometry import inv_T, transform_points
 from armvision.perception.detection import Detection, FrameContext
@@ -36,3 +40,77 @@ def detect_placed(
         for s in truth.objects
     ]
     return true, found
+
+
+class TiltedBench:
+    """A synthetic bench: a camera ``height`` m above a table, pitched ``pitch_deg`` down,
+    and the exact depth image of the table and of vertical cylinders standing on it (no
+    noise), so a detector's answer can be checked against geometry known by construction."""
+
+    INTR = Intrinsics(640, 480, 615.0, 615.0, 319.5, 239.5)
+
+    def __init__(self, pitch_deg: float = 35.0, height: float = 0.45) -> None:
+        pitch = math.radians(pitch_deg)
+        self.height = height
+        #: The table's normal (up, toward the camera's side) in the camera frame.
+        self.up = np.array([0.0, -math.cos(pitch), -math.sin(pitch)])
+        u, v = np.meshgrid(np.arange(self.INTR.width), np.arange(self.INTR.height))
+        x = (u - self.INTR.ppx) / self.INTR.fx
+        y = (v - self.INTR.ppy) / self.INTR.fy
+        self.rays = np.stack([x, y, np.ones(u.shape)], axis=-1)  # points at depth 1 m
+        self.along = self.rays @ self.up
+
+    def table_point(self, u: float, v: float) -> np.ndarray:
+        """The table's point (camera frame) seen at pixel (u, v)."""
+        ray = np.array([(u - self.INTR.ppx) / self.INTR.fx, (v - self.INTR.ppy) / self.INTR.fy, 1])
+        return ray * (-self.height / float(ray @ self.up))
+
+    def table_depth(self) -> np.ndarray:
+        """Depth (m) of the table alone, 0 where the ray misses it."""
+        with np.errstate(divide="ignore"):
+            return np.where(self.along < -1e-3, -self.height / self.along, 0.0)
+
+    def heights(self, t: np.ndarray) -> np.ndarray:
+        """Height above the table of each pixel's ray at depth ``t``."""
+        return t * self.along + self.height
+
+    def cylinder(self, foot: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Depths where each pixel's ray enters and leaves the infinite vertical cylinder of
+        ``radius`` standing at ``foot`` (NaN where it misses): the roots of |t r_o - F_o|^2 =
+        R^2, r_o and F_o being the ray's and the foot's parts off the axis."""
+        r_o = self.rays - self.along[..., None] * self.up
+        f_o = foot - (foot @ self.up) * self.up
+        a = np.einsum("...i,...i", r_o, r_o)
+        b = r_o @ f_o
+        disc = b**2 - a * (f_o @ f_o - radius**2)
+        root = np.sqrt(np.where(disc > 0.0, disc, np.nan))
+        return (b - root) / a, (b + root) / a
+
+    def vessel(self, foot: np.ndarray, radius: float, height: float, lid: bool) -> np.ndarray:
+        """Depth image of the table and a thin-walled vertical cylinder on it: closed by a
+        lid at ``height`` (a can) or open (a cup: over its near rim the rays meet its inner
+        far wall, or its floor)."""
+        depth = self.table_depth()
+        near, far = self.cylinder(foot, radius)
+        h_near, h_far = self.heights(near), self.heights(far)
+        wall = (h_near >= 0.0) & (h_near <= height)
+        above = h_near > height  # the ray passes over the rim (or lid)
+        if lid:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_lid = (height - self.height) / self.along
+            on_lid = above & (self.heights(far) < height) & (t_lid > 0)
+            depth = np.where(on_lid, t_lid, depth)
+        else:
+            inner = above & (h_far >= 0.0) & (h_far <= height)
+            depth = np.where(inner, far, depth)
+        return np.where(wall, near, depth)
+
+    def frame(self, depth: np.ndarray) -> RGBDFrame:
+        color = np.full((self.INTR.height, self.INTR.width, 3), 128, np.uint8)
+        return RGBDFrame(
+            color=color,
+            depth=depth.astype(np.float32),
+            intrinsics=self.INTR,
+            timestamp=0.0,
+            index=0,
+        )

@@ -174,7 +174,9 @@ class GeometricDetector:
     ``straight_wall_min_rms``, or when seen from ``inside_min_elevation_deg`` or more above
     with its far top in view it shows no inside (fewer than ``closed_top_min_points``, or a
     fifth, of the points on its far half below the rim: a can's lid, or a box whose top
-    returned no depth).
+    returned no depth), and from lower when it shows no inside and the full-resolution
+    depth over its top is a lid (:meth:`_lid_seen`: the strided cloud loses a lid seen at
+    a low angle with the edges).
 
     A bottle's centre and radius are its body's (:meth:`_bottle_body`): the wall circle is
     fitted again below ``body_fit_fraction`` of its height when the whole cluster's circle is
@@ -674,6 +676,8 @@ class GeometricDetector:
             far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
             if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
                 label = "other"  # its top in view from above, yet no inside: closed
+            elif self._lid_seen(frame, center, radius, rim, normal, offset, e1, e2):
+                label = "other"  # a lid where a cup's opening would be
         return label, top, circle, False
 
     def _detection(
@@ -1276,6 +1280,42 @@ class GeometricDetector:
         margin = np.maximum(0.01, 3.0 * depth_rms_error(p_cam[ok, 2]))
         hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
         return int((~hidden).sum()) >= len(ring) // 2
+
+    def _lid_seen(
+        self,
+        frame: RGBDFrame,
+        center: Array,
+        radius: float,
+        rim: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+    ) -> bool:
+        """Whether the full-resolution depth shows a lid across the top: of 21 samples (a
+        5 x 5 grid's, within the disc) on the disc inside ``closed_top_inner`` x the radius
+        at ``rim`` height, at least ``closed_top_min_points`` return depth within
+        ``closed_top_tolerance`` (or 3 sigma) of that disc or beyond it (nearer: a nearer
+        object; missing: neither is judged), and ``closed_top_fraction`` of those are on
+        it. Looking into an open cup the rays pass the rim and meet the inside, farther.
+        The strided cloud loses a lid seen at a low angle: its depth changes fast across
+        it, so it goes with the edges."""
+        a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
+        grid = np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
+        uw = center + grid
+        p_cam = uw[:, :1] * e1 + uw[:, 1:] * e2 + (rim - offset) * normal
+        uv, ok = _in_image(frame.intrinsics, p_cam)
+        if ok.sum() < self.closed_top_min_points:
+            return False
+        seen = _depth_at(frame, uv[ok])
+        expected = p_cam[ok, 2]
+        margin = np.maximum(self.closed_top_tolerance, 3.0 * depth_rms_error(expected))
+        on = (seen > 0.0) & (np.abs(seen - expected) <= margin)
+        beyond = (seen > 0.0) & (seen > expected + margin)
+        judged = int(on.sum() + beyond.sum())
+        return (
+            judged >= self.closed_top_min_points and on.sum() >= self.closed_top_fraction * judged
+        )
 
     def _body_hidden(
         self,
