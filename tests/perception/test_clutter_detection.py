@@ -399,3 +399,29 @@ def test_the_circle_most_points_agree_on_is_the_mugs_not_its_handles() -> None:
         np.column_stack([t, 0.6 - t]),
     ) / math.sqrt(2.0) + RNG.normal(0.0, 0.0008, (400, 2))
     assert GeometricDetector()._consensus_circle(corner, 0.001) is None
+
+
+def _arc(cx: float, cw: float, radius: float, n: int, a0: float, a1: float) -> np.ndarray:
+    """(u, w) of n points on an arc of a circle about (cx, cw), angles a0..a1 (the camera at
+    the origin sees the side between pi and 2 pi)."""
+    a = RNG.uniform(a0, a1, n)
+    r = radius + RNG.normal(0.0, 0.0008, n)
+    return np.column_stack([cx + r * np.cos(a), cw + r * np.sin(a)])
+
+
+def test_a_wide_circle_in_front_does_not_swallow_a_neighbours_wall() -> None:
+    """A clear tumbler's sparse front fitted a 5 cm circle reaching over the can stack it
+    touched (a cluttered frame), whose wall then joined it: a larger cluster with a wall
+    about an axis outside the circle stays apart. A cup's liquid inside its wall's circle
+    still joins it."""
+    det = GeometricDetector()
+    can = _arc(0.0, 0.70, 0.034, 600, 1.06 * math.pi, 1.94 * math.pi)
+    clear = _arc(0.0, 0.645, 0.05, 150, 1.2 * math.pi, 1.8 * math.pi)
+    uw = np.concatenate([can, clear])
+    groups = det._merge_contained([np.arange(600), np.arange(600, 750)], uw, np.full(750, 0.7))
+    assert sorted(len(m) for m, _, _ in groups) == [150, 600]
+    wall = _arc(0.0, 0.70, 0.034, 400, 1.06 * math.pi, 1.94 * math.pi)
+    liquid = _disc(0.028, 0.07, 120)[:, :2] + [0.0, 0.10]  # about (0, 0.70)
+    uw = np.concatenate([wall, liquid])
+    groups = det._merge_contained([np.arange(400), np.arange(400, 520)], uw, np.full(520, 0.7))
+    assert [len(m) for m, _, _ in groups] == [520]

@@ -499,7 +499,10 @@ class GeometricDetector:
         with its wall circle (None: to be fitted, the cluster having grown). Objects standing
         apart (gaps of a centimetre or more) lie outside each other's circles. Each comes
         with its :meth:`_wall_circle` and whether that was computed (a cluster left alone
-        keeps its own, even None or a circle too small or large: the fit need not run again)."""
+        keeps its own, even None or a circle too small or large: the fit need not run again).
+        A cluster is not joined to a smaller one's circle when its own wall circle's axis
+        lies outside that circle: a clear cup's sparse front fits too wide a circle, which
+        reached over the can it touched."""
         clusters = sorted(clusters, key=len, reverse=True)
         big = [k for k, members in enumerate(clusters) if len(members) >= self.min_points]
         fits: list[_Circle | None] = [None] * len(clusters)
@@ -525,6 +528,15 @@ class GeometricDetector:
                 ((lo <= circle[0] + reach) & (hi >= circle[0] - reach)).all(axis=1)
             )
             for i in near:
+                own = circles[i]
+                if (
+                    own is not None
+                    and len(clusters[i]) > len(clusters[j])
+                    and math.hypot(*(own[0] - circle[0])) > circle[1]
+                ):
+                    # A larger cluster with a wall of its own about an axis outside this
+                    # circle is a neighbour it reaches (a clear cup's circle, too wide).
+                    continue
                 points = uw[clusters[i]]
                 inside = _radial(points, circle[0]) < circle[1] + self.contained_margin
                 joins[i, j] = inside.mean() >= self.contained_fraction
