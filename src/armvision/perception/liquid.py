@@ -250,9 +250,9 @@ def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
         return np.median(a, axis=axis)  # NaN, with numpy's warning
     k = n // 2
     if n % 2:
-        return np.take(np.partition(a, k, axis=axis), k, axis=axis)
+        return np.partition(a, k, axis=axis).take(k, axis=axis)
     part = np.partition(a, (k - 1, k), axis=axis)
-    return (np.take(part, k - 1, axis=axis) + np.take(part, k, axis=axis)) / 2
+    return (part.take(k - 1, axis=axis) + part.take(k, axis=axis)) / 2
 
 
 def _clamp(x: float, lo: float, hi: float) -> float:
@@ -260,9 +260,9 @@ def _clamp(x: float, lo: float, hi: float) -> float:
     return float(min(max(x, lo), hi))
 
 
-def _median_rgb(pixels: NDArray[np.number]) -> tuple[int, int, int]:
+def _median_rgb(pixels: NDArray[np.floating]) -> tuple[int, int, int]:
     """The per-channel median of RGB pixels (..., 3), as integers."""
-    r, g, b = (int(c) for c in np.median(pixels.reshape(-1, 3), axis=0))
+    r, g, b = (int(c) for c in _median(pixels.reshape(-1, 3), axis=0))
     return r, g, b
 
 
@@ -321,7 +321,8 @@ def hough_level(
     fill = float(np.clip((h - row) / h, 0.0, 1.0))
     length = float(np.hypot(best[2] - best[0], best[3] - best[1]))
     below = crop[int(row) + 1 :, max(int(0.3 * w), 0) : max(int(0.7 * w), 1)]
-    colour = _median_rgb(below) if below.size else None
+    # (np.median of integers takes the mean of the middle two in float64, as this does)
+    colour = _median_rgb(below.astype(np.float64)) if below.size else None
     for x_a, y_a, x_b, y_b in flat.astype(int):
         cv2.line(debug, (x_a, y_a), (x_b, y_b), (0, 160, 255), 1)
     cv2.line(debug, (0, round(row)), (w - 1, round(row)), (255, 0, 0), 1)
@@ -823,7 +824,7 @@ class LiquidLevelMeter:
         cuts = np.cumsum([0] + [len(run) for run in runs])
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
-        edges = _rgb_length(np.diff(strip, axis=1))
+        edges = _rgb_length(strip[:, 1:] - strip[:, :-1])
         body_row = np.ones(len(used) - n_low, bool)  # rows first..stop
         faint = np.zeros(len(used) - n_low)  # the strongest in-band step of the counted sides
         counted = 0
@@ -1109,7 +1110,7 @@ class LiquidLevelMeter:
         # Both sides in one strip, (rows, side, column, RGB): left (-t) then right (+t).
         strip = self._strip(frame, bf, s, np.concatenate([-grid, grid]))
         strip = strip.reshape(len(s), 2, len(grid), 3)
-        g = _rgb_length(np.diff(strip, axis=2))
+        g = _rgb_length(strip[:, :, 1:] - strip[:, :, :-1])
         # Each step or its neighbour's, whichever is larger (wrapping around each side's
         # columns, as np.roll does).
         wrapped = np.concatenate([g[..., -1:], g, g[..., :1]], axis=2)
@@ -1132,7 +1133,7 @@ class LiquidLevelMeter:
         height of the points within ``wall_band`` of the outer cylinder's front (a clear wall
         does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
         reaches at least that high, less a few mm of shoulder still near the radius."""
-        h = rays.height[rays.at_wall]  # every ray passes within _RAY_MISS = 0.8 r
+        h = rays.height.take(np.flatnonzero(rays.at_wall))  # all pass within _RAY_MISS = 0.8 r
         return float(np.percentile(h, 95.0)) if len(h) >= 20 else 0.0
 
     def _why_unseen(
@@ -1229,10 +1230,10 @@ class LiquidLevelMeter:
         # A point on the bottle above the body is the wall of a shoulder or a neck, no
         # evidence of liquid below it.
         keep = np.flatnonzero(use & (~rays.on_bottle | (rays.height < body + 0.002)))
-        on = rays.on_bottle[keep]
-        row = np.clip(((rays.s_low[keep] - self.base) / self.step_m).astype(int), 0, n_rows - 1)
+        at = (rays.s_low.take(keep) - self.base) / self.step_m
+        row = np.minimum(np.maximum(at.astype(int), 0), n_rows - 1)  # np.clip, faster
         n_all = np.bincount(row, minlength=n_rows)
-        n_on = np.bincount(row[on], minlength=n_rows)
+        n_on = np.bincount(row, weights=rays.on_bottle.take(keep), minlength=n_rows)
         known = np.flatnonzero(n_all >= 2)
         if len(known) < 4:
             return None
