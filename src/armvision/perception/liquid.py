@@ -76,6 +76,7 @@ figures are in the README).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Literal, TypeVar
@@ -720,16 +721,19 @@ class LiquidLevelMeter:
             res = boxes[0] - target
             if converged or iteration == 8:
                 break
-            J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
+            # A bad first guess must not overshoot: each step is clipped to +-0.05.
             if len(idx) == 1:  # the radius alone (a detector's box): lstsq in closed form
-                jj = float(J[:, 0] @ J[:, 0])
-                delta = np.array([-float(J[:, 0] @ res) / jj if jj > 0.0 else 0.0])
+                j = (boxes[1] - boxes[2]) / (2 * eps)
+                jj = float(j @ j)
+                step = -float(j @ res) / jj if jj > 0.0 else 0.0
+                p[idx[0]] += min(max(step, -0.05), 0.05)
+                converged = abs(step) < 1e-5
             else:
+                J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
                 delta = np.linalg.lstsq(J, -res, rcond=None)[0]
-            # A bad first guess must not overshoot (np.clip's bounds, without its overhead).
-            p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)
+                p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)  # np.clip, faster
+                converged = bool(np.max(np.abs(delta)) < 1e-5)
             p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
-            converged = bool(np.max(np.abs(delta)) < 1e-5)
         misfit = float(np.max(np.abs(res)))
         return foot + p[0] * e1 + p[1] * e2, float(p[2]), float(p[3]), misfit
 
@@ -804,11 +808,16 @@ class LiquidLevelMeter:
         # The strip at 0.5 mm steps, sampled where it matters only: on each side the band
         # around that side's wall and 1 mm beyond it, and the background 1.2-1.5 times as far.
         grid = np.arange(-1.5 * r, 2.0 * r, 0.0005)  # the phase of the validated sampling
+
+        def within(lo: float, hi: float) -> Array:
+            """The grid's values strictly between ``lo`` and ``hi`` (it is increasing)."""
+            return grid[np.searchsorted(grid, lo, "right") : np.searchsorted(grid, hi, "left")]
+
         runs, bands = [], []
         for side, wall in zip((-1.0, 1.0), walls):
             lo, hi = wall - self.edge_band_in, wall + self.edge_band_out
-            band_t = grid[(grid > lo - 0.001) & (grid < hi + 0.001)]
-            runs += [side * band_t, side * grid[(grid > 1.2 * wall) & (grid < 1.5 * wall)]]
+            band_t = within(lo - 0.001, hi + 0.001)
+            runs += [side * band_t, side * within(1.2 * wall, 1.5 * wall)]
             bands.append((band_t, lo, hi))
         t = np.concatenate(runs)
         # Only the rows used: the lowest third (which sides show the wall), then from the
@@ -821,7 +830,7 @@ class LiquidLevelMeter:
         k = self._depression_tan(bf, searched)[used, None]
         shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
         strip = self._strip(frame, bf, searched[used], t, shift)
-        cuts = np.cumsum([0] + [len(run) for run in runs])
+        cuts = [0, *itertools.accumulate(len(run) for run in runs)]
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
         edges = _rgb_length(strip[:, 1:] - strip[:, :-1])
@@ -995,7 +1004,8 @@ class LiquidLevelMeter:
         c1 = np.cumsum(profile, axis=0)
         c2 = np.cumsum(np.sum(profile**2, axis=1))
         k = np.arange(1, n)  # rows [0, k) below, [k, n) above
-        sum_lo, sum_hi = c1[k - 1], c1[-1] - c1[k - 1]
+        sum_lo = c1[:-1]  # the rows below each k
+        sum_hi = c1[-1] - sum_lo
         sse = c2[-1] - np.sum(sum_lo**2, axis=1) / k - np.sum(sum_hi**2, axis=1) / (n - k)
         best = int(np.argmin(sse))
         mu_lo, mu_hi = sum_lo[best] / k[best], sum_hi[best] / (n - k[best])
