@@ -113,3 +113,19 @@ def test_a_lid_seen_at_a_low_angle_is_closed_a_cups_opening_is_not() -> None:
             found = GeometricDetector().detect(bench.frame(np.where(exact > 0, noisy, 0.0)))
             assert [d.label for d in found] == [label], (pitch, lid)
             assert abs(found[0].radius - 0.036) < 0.004
+
+
+def test_liquid_in_a_clear_cup_is_no_can_lid() -> None:
+    """The liquid in a clear cup returns depth and its surface reads as a lid; the clear
+    wall above it returns none (here: none at all). The same liquid column with nothing
+    above it is a can. By construction on the synthetic bench, with Intel's noise."""
+    bench = TiltedBench()
+    foot = bench.table_point(320.0, 330.0)
+    column = bench.vessel(foot, 0.034, 0.06, lid=True)
+    near, _ = bench.cylinder(foot, 0.034)
+    above = (bench.heights(near) > 0.06) & (bench.heights(near) <= 0.10)
+    rng = np.random.default_rng(2)
+    for exact, label in ((column, "other"), (np.where(above, 0.0, column), "cup")):
+        noisy = exact + rng.normal(0.0, 1.0, exact.shape) * depth_rms_error(exact)
+        found = GeometricDetector().detect(bench.frame(np.where(exact > 0, noisy, 0.0)))
+        assert [d.label for d in found] == [label]

@@ -761,7 +761,9 @@ class GeometricDetector:
         which blank what is behind them) and at least ``clear_min_radius`` in radius (not a
         fragment of a clear object's sparse depth): clear plastic or
         glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl.
-        Returns the detections and each one's missing share."""
+        One called other for its flat top may be the liquid in a clear cup, the clear wall
+        above returning no depth (:meth:`_clear_above`): a cup. Returns the detections and
+        each one's missing share."""
         out = list(detections)
         shares = [0.0] * len(out)
         if self.clear_share >= 1.0:
@@ -776,6 +778,15 @@ class GeometricDetector:
             )
             shares[i] = share
             if share < self.clear_share:
+                # Above it, what stands behind counts no more than nearer clear objects.
+                behind = [d.box for d in detections if d.center_cam[2] > det.center_cam[2]]
+                skip = clear_boxes + behind
+                if (
+                    det.label == "other"
+                    and not planar[i]
+                    and self._clear_above(frame, det, center, normal, offset, e1, e2, skip)
+                ):
+                    out[i] = dataclasses.replace(det, label="cup")
                 continue
             clear_boxes.append(det.box)
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
@@ -893,6 +904,33 @@ class GeometricDetector:
             replaced.update(int(k) for k in np.unique(owner[group]) if k >= 0)
         return [d for k, d in enumerate(detections) if k not in replaced] + added
 
+    def _clear_above(
+        self,
+        frame: RGBDFrame,
+        det: Detection,
+        center: Array,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+        skip_boxes: Sequence[tuple[float, float, float, float]],
+    ) -> bool:
+        """Whether a short, cup-wide object called other is the liquid in a clear vessel: its
+        flat top is the liquid's surface, read as a lid, and above it the vessel's wall
+        returns no depth over at least ``clear_share`` of its front (:meth:`_see_through`
+        from 0.5 to 3.5 cm above the top; over a can the rays there meet what stands behind
+        it, and return depth)."""
+        if not (
+            self.clear_min_radius <= det.radius <= self.bowl_min_radius
+            and det.height < self.bottle_min_height - 0.035
+        ):
+            return False
+        heights = det.height + np.linspace(0.005, 0.035, 8)
+        share = self._see_through(
+            frame, center, det.radius, det.height, normal, offset, e1, e2, skip_boxes, heights
+        )
+        return share >= self.clear_share
+
     def _see_through(
         self,
         frame: RGBDFrame,
@@ -904,9 +942,11 @@ class GeometricDetector:
         e1: Array,
         e2: Array,
         skip_boxes: Sequence[tuple[float, float, float, float]] = (),
+        heights: Array | None = None,
     ) -> float:
         """Share of the object's front surface where the depth camera returns nothing:
-        sampled over the middle 60 % of its width and 15-85 % of its height; samples with
+        sampled over the middle 60 % of its width and 15-85 % of its height (or at
+        ``heights``, 8 of them); samples with
         something nearer in front (another object) do not count. Near 0 for an opaque
         object (speckle), about half for clear plastic on a D435 (52 % missing on ClearGrasp's
         real frames, 22-75 % per frame; the rest mostly shows what is behind). Missing depth
@@ -916,7 +956,7 @@ class GeometricDetector:
         to_cam = -center / max(math.hypot(*center), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
         t = radius * np.linspace(-0.6, 0.6, 7)
-        hs = top * np.linspace(0.15, 0.85, 8)
+        hs = top * np.linspace(0.15, 0.85, 8) if heights is None else heights
         uw = center + np.outer(np.sqrt(radius**2 - t**2), to_cam) + np.outer(t, lateral)
         base = uw[:, :1] * e1 + uw[:, 1:] * e2 - offset * normal
         p_cam = (base[None, :, :] + hs[:, None, None] * normal).reshape(-1, 3)
