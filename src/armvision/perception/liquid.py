@@ -1067,7 +1067,7 @@ class LiquidLevelMeter:
         neg_qb = 2.0 * half_b
         qb2, qa2, qa4 = neg_qb**2, 2.0 * qa, 4.0 * qa
         c0 = fa**2 + fl**2
-        disc = qb2 - qa4 * (c0 - np.array([[bf.radius], [r_liq]]) ** 2)
+        disc = qb2 - qa4 * (c0 - np.array([[bf.radius**2], [r_liq**2]]))
         sq, (hit, hit_liq) = np.sqrt(np.maximum(disc, 0.0)), disc > 0
         # The outer cylinder's front (inf where the ray misses it).
         front = np.where(hit, (neg_qb - sq[0]) / qa2, np.inf)
