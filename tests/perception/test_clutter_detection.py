@@ -265,11 +265,13 @@ def test_an_empty_clear_bottles_centre_is_its_bodys() -> None:
 def test_a_narrow_bottle_keeps_its_front_and_takes_the_prior_radius() -> None:
     """A body circle no wider than a cap (a sliver of a bottle seen past a nearer object):
     the radius becomes ``bottle_prior_radius`` and the centre moves away from the camera (at
-    the origin, toward -w) so that the seen front stays; a body of 30 mm keeps its circle."""
-    det = GeometricDetector(bottle_min_radius=0.018)
-    uw, h = _cluster(_ring(0.012, 0.015, 0.2, 300))
+    the origin, toward -w) so that the seen front stays; a body of 30 mm keeps its circle,
+    and one just under ``bottle_min_radius`` is widened by as little (no step)."""
+    det = GeometricDetector()
+    assert det.bottle_min_radius == 0.024  # all the way to the prior from 12 mm down
+    uw, h = _cluster(_ring(0.010, 0.015, 0.2, 300))
     circle = det._wall_circle(uw, 0.001)
-    assert circle is not None and abs(circle[1] - 0.012) < 0.002
+    assert circle is not None and abs(circle[1] - 0.010) < 0.0015
     center, radius, res, wall = det._bottle_body(uw, h, 0.2, 0.001, circle)
     assert radius == det.bottle_prior_radius
     away = circle[0] / np.linalg.norm(circle[0])  # from the camera through the centre
@@ -279,13 +281,19 @@ def test_a_narrow_bottle_keeps_its_front_and_takes_the_prior_radius() -> None:
     circle = det._wall_circle(uw, 0.001)
     assert circle is not None
     assert det._bottle_body(uw, h, 0.2, 0.001, circle)[1] == circle[1]
+    for below in (1e-6, 1e-4):  # continuous at the threshold: pixel noise moves it as little
+        r = det.bottle_min_radius - below
+        assert det._widened(np.array([0.0, 0.6]), r, h, 0.2)[1] - r < 2.0 * below
+    assert det._widened(np.array([0.0, 0.6]), 0.018, h, 0.2)[1] == pytest.approx(0.024)
+    # An upper part (nothing below 0.4 of its top: a neck over a nearer object) keeps it.
+    assert det._widened(np.array([0.0, 0.6]), 0.012, h[h > 0.1], 0.2)[1] == 0.012
 
 
 def test_a_body_circle_wider_than_the_body_seen_is_not_taken() -> None:
     """The front of a body that curves like a 70 mm circle but is seen only 24 mm across (a
     strip of wall between two nearer objects) fits a circle far wider than what is seen:
-    the cap's circle is not replaced by it; below the minimum radius the prior applies."""
-    det = GeometricDetector()
+    the cap's circle is not replaced by it (the prior radius, which would widen it, off)."""
+    det = GeometricDetector(bottle_min_radius=0.0)
     x = RNG.uniform(-0.012, 0.012, 200)
     strip = np.column_stack([x, 0.6 + 0.07 - np.sqrt(0.07**2 - x**2), RNG.uniform(0.015, 0.1, 200)])
     cap = _ring(0.02, 0.15, 0.2, 400)
@@ -307,10 +315,10 @@ def test_a_tall_sliver_is_judged_with_a_bottles_radius() -> None:
     cap = _disc(0.008, 0.2, 120) + np.array([0.0, 0.018, 0.0])  # neck and cap about the moved-
     cap[:, 2] = RNG.uniform(0.135, 0.2, len(cap))  # back centre, from the shoulder up
     uw, h = _cluster(body, cap)
-    assert _label(uw, h, 0.012, bottle_min_radius=0.018) == "bottle"
-    assert _label(uw, h, 0.012) == "other"  # the prior is off by default
+    assert _label(uw, h, 0.012) == "bottle"
+    assert _label(uw, h, 0.012, bottle_min_radius=0.0) == "other"  # without the prior
     uw, h = _cluster(_ring(0.012, 0.012, 0.2, 400))
-    assert _label(uw, h, 0.012, bottle_min_radius=0.018) == "other"
+    assert _label(uw, h, 0.012) == "other"
 
 
 def test_a_bottle_joined_at_its_foot_by_a_cups_far_wall_is_fitted_by_its_upper_part() -> None:

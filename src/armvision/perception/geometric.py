@@ -180,11 +180,12 @@ class GeometricDetector:
 
     A bottle's centre and radius are its body's (:meth:`_bottle_body`): the wall circle is
     fitted again below ``body_fit_fraction`` of its height when the whole cluster's circle is
-    its cap's; a body radius still below ``bottle_min_radius`` (a cap or a sliver seen past a
-    nearer object) becomes ``bottle_prior_radius``, the seen front kept in place. That prior
-    is off by default (``bottle_min_radius = 0``): it shrank clear bottles' centre-error tail
-    in clutter, but its jump from under 18 mm to 30 mm made a JPEG replay of the demo's
-    tracks differ from the recording by 1.46 mm (0.55 without); 0.018 turns it on. A
+    its cap's; a body radius below ``bottle_min_radius`` (a cap or a sliver seen past a
+    nearer object) is widened toward ``bottle_prior_radius``, all the way at half of
+    ``bottle_min_radius`` and in proportion between, the seen front kept in place
+    (:meth:`_widened`; 0 turns it off). A step from under 18 mm straight to 30 mm had made
+    a JPEG replay of the demo's tracks differ from the recording by 1.46 mm (0.55 without;
+    0.42 with the ramp). A
     cluster at least ``bottle_min_height`` tall with no round wall through it is fitted again
     by its points above ``upper_fit_fraction`` of its height (:meth:`_upper_circle`): a bottle
     joined at its foot by a lower object (a cup's far wall a centimetre in front), taken when
@@ -255,7 +256,7 @@ class GeometricDetector:
         hidden_neck_max_radius: float = 0.02,
         hidden_low_fraction: float = 0.4,
         hidden_margin: float = 0.06,
-        bottle_min_radius: float = 0.0,
+        bottle_min_radius: float = 0.024,
         bottle_prior_radius: float = 0.030,
         fragment_min_points: int = 20,
         fragment_radius: float = 0.035,
@@ -994,9 +995,10 @@ class GeometricDetector:
         (the spread runs short of the diameter, its edges cut as depth edges: 53 mm for a
         70 mm bottle; a circle much wider than what is seen is a fit to noise). A
         radius still below ``bottle_min_radius`` is a cap or a sliver of a bottle partly
-        hidden, not a body: the radius becomes ``bottle_prior_radius`` and the centre moves
-        away from the camera by the difference, keeping the seen front where it is (a
-        narrow circle through the front has its centre too near the camera by as much).
+        hidden, not a body: it is widened toward ``bottle_prior_radius`` (:meth:`_widened`)
+        and the centre moves away from the camera by the difference, keeping the seen front
+        where it is (a narrow circle through the front has its centre too near the camera
+        by as much).
         ``fit`` is the body's :meth:`_wall_circle` when ``fitted`` (None: too few points)."""
         center, radius = circle[0], circle[1]
         body = self._body_mask(h, top)
@@ -1009,7 +1011,7 @@ class GeometricDetector:
                 lo, hi = np.percentile(across, [2.0, 98.0])
                 if fit[1] <= 0.65 * float(hi - lo):
                     return _on_all(uw, body, fit)
-        center, radius = self._widened(center, radius)
+        center, radius = self._widened(center, radius, h, top)
         return center, radius, circle[2], circle[3]  # the score judges the fit to what was seen
 
     def _upper_circle(self, uw: Array, h: Array, top: float, sigma: float) -> _Circle | None:
@@ -1071,14 +1073,23 @@ class GeometricDetector:
         """Which points of a bottle of height ``top`` are its body's, for its circle."""
         return h < self.body_fit_fraction * top
 
-    def _widened(self, center: Array, radius: float) -> tuple[Array, float]:
-        """A circle narrower than ``bottle_min_radius`` as ``bottle_prior_radius`` wide, its
-        centre moved away from the camera (at the origin) so that its front stays; any other
-        unchanged."""
-        if radius >= self.bottle_min_radius:
+    def _widened(self, center: Array, radius: float, h: Array, top: float) -> tuple[Array, float]:
+        """A circle narrower than ``bottle_min_radius`` (m) widened toward
+        ``bottle_prior_radius``: by the share (m - r) / (m / 2) of the difference, all of it
+        from half of m down, so the radius changes continuously with the fit (pixel noise
+        moves it by as little as it moves the fit). Its centre moves away from the camera
+        (at the origin) by as much, so that its front stays; any other circle unchanged,
+        and so is one of a cluster that does not reach down (its points' 5th height
+        percentile above ``hidden_low_fraction`` of its ``top``): an upper part, a bottle's
+        neck over a nearer object, whose narrow circle is about its axis."""
+        if radius >= self.bottle_min_radius or _percentile(h, 5.0) >= (
+            self.hidden_low_fraction * top
+        ):
             return center, radius
+        share = min(1.0, 2.0 * (self.bottle_min_radius - radius) / self.bottle_min_radius)
+        wider = radius + share * (self.bottle_prior_radius - radius)
         away = center / max(math.hypot(*center), 1e-9)
-        return center + (self.bottle_prior_radius - radius) * away, self.bottle_prior_radius
+        return center + (wider - radius) * away, wider
 
     def _flat_face(self, uw: Array) -> _Circle | None:
         """A cluster without a round wall as a footprint circle: its width across the view
@@ -1242,7 +1253,7 @@ class GeometricDetector:
             # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
             # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
             band = h > top - self.top_band
-            c, r_body = self._widened(center, radius)
+            c, r_body = self._widened(center, radius, h, top)
             r_top = _radial(uw[band], c)
             if _percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
                 return "other"
