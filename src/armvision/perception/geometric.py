@@ -851,14 +851,13 @@ class GeometricDetector:
         for m in members:
             taken[m] = True
         solid = [k for k in range(len(detections)) if k not in pieces]
-        pool = ~taken
+        free = np.flatnonzero(~taken)
         for k in solid:  # a detection's remnants (edges, a grazing face) are its own
-            pool &= _radial(uw, feet[k][0]) >= feet[k][1] + self.fragment_clearance
+            free = free[_radial(uw[free], feet[k][0]) >= feet[k][1] + self.fragment_clearance]
         owner = np.full(len(uw), -1)
         for k in pieces:
-            pool[members[k]] = True
             owner[members[k]] = k
-        which = np.flatnonzero(pool)
+        which = np.sort(np.concatenate([free] + [members[k] for k in pieces]))
         if len(which) < self.fragment_min_points:
             return detections
         labels = self._cluster(uw[which], 2.0 * self.grid_cell)
