@@ -385,11 +385,9 @@ class GeometricDetector:
             e1,
             e2,
         )
-        kept = [k for k, f in enumerate(found) if f is not None]
-        detections = [found[k][0] for k in kept]  # type: ignore[index]
-        planar = [found[k][1] for k in kept]  # type: ignore[index]
+        fits = [(f, groups[k][0]) for k, f in enumerate(found) if f is not None]
         detections, shares = self._clear_containers(
-            frame, detections, planar, normal, offset, e1, e2
+            frame, [f[0] for f, _ in fits], [f[1] for f, _ in fits], normal, offset, e1, e2
         )
         if self.fragment_min_points <= 0:
             return detections
@@ -400,7 +398,7 @@ class GeometricDetector:
             uw,
             h[idx],
             detections,
-            [groups[k][0] for k in kept],
+            [m for _, m in fits],
             shares,
             normal,
             offset,
@@ -779,15 +777,12 @@ class GeometricDetector:
             )
             shares[i] = share
             if share < self.clear_share:
-                # Above it, what stands behind counts no more than nearer clear objects.
-                behind = [d.box for d in detections if d.center_cam[2] > det.center_cam[2]]
-                skip = clear_boxes + behind
-                if (
-                    det.label == "other"
-                    and not planar[i]
-                    and self._clear_above(frame, det, center, normal, offset, e1, e2, skip)
-                ):
-                    out[i] = dataclasses.replace(det, label="cup")
+                if det.label == "other" and not planar[i]:
+                    # Above it, what stands behind counts no more than nearer clear objects.
+                    behind = [d.box for d in detections if d.center_cam[2] > det.center_cam[2]]
+                    skip = clear_boxes + behind
+                    if self._clear_above(frame, det, center, normal, offset, e1, e2, skip):
+                        out[i] = dataclasses.replace(det, label="cup")
                 continue
             clear_boxes.append(det.box)
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
@@ -821,8 +816,8 @@ class GeometricDetector:
 
         The pieces: detections not labelled bottle whose front returns no depth over at least
         ``clear_share`` of it (:meth:`_clear_containers`) and whose circle is narrower than
-        ``clear_refit_radius``. Their points and the candidate points no
-        cluster took (``members`` are the detections' points in ``uw``, ``idx`` each point's
+        ``clear_refit_radius``. Their points and the candidate points no cluster took
+        (``members`` are the detections' points in ``uw``, ``idx`` each point's
         pixel on the strided grid, ``h`` its height), leaving out those within
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
@@ -834,9 +829,9 @@ class GeometricDetector:
         (:func:`_behind_front`), its height their top. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
         over at least ``clear_share`` of its front (nearer objects' boxes left out): a clear
-        cup. Its centre is good to a
-        centimetre or two: enough to count it and to keep a grasp clear of it. Taller groups
-        are left as they were: a bottle is something the tasks grasp.
+        cup. Its centre is good to a centimetre or two: enough to count it and to keep a
+        grasp clear of it. Taller groups are left as they were: a bottle is something the
+        tasks grasp.
         """
         pieces = [
             k
