@@ -1199,8 +1199,9 @@ class LiquidLevelMeter:
         upper_top = body + 0.004 + 0.5 * max(bf.top - body - 0.004, 0.0)
         neck_rays = (rays.miss < 0.25) & (rays.s_axis > body + 0.004) & (rays.s_axis < upper_top)
         n_neck = int(np.count_nonzero(neck_rays))
-        if n_neck >= 10 and share(rays.on_bottle, neck_rays, n_neck) >= self.opaque_share:
-            neck = f"{100 * share(rays.on_bottle, neck_rays, n_neck):.0f} % of the neck"
+        dense_neck = share(rays.on_bottle, neck_rays, n_neck) if n_neck >= 10 else 0.0
+        if n_neck >= 10 and dense_neck >= self.opaque_share:
+            neck = f"{100 * dense_neck:.0f} % of the neck"
         elif passes_below is not None and passes_below >= bf.top - self.cap_m:
             neck = "no line of sight passes the bottle below its top"
         else:
