@@ -789,7 +789,7 @@ class Config:
         for key, zone in named:
             if zone not in zones:
                 raise ValueError(
-                    f"{key} names zone {zone!r}, which place.zones does not define "
+                    f"'{key}' names zone {zone!r}, which 'place.zones' does not define "
                     f"(zones: {', '.join(sorted(zones)) or 'none'})"
                 )
         return self
@@ -868,8 +868,10 @@ def _describe(error: ErrorDetails) -> str:
         return f"unknown key '{key}'"
     if error["type"] == "missing_argument":
         return f"'{key}' is required"
-    msg = error["msg"].removeprefix("Value error, ")  # our own validators' messages
-    return f"'{key}': {_clean(msg)} (got {_show(error.get('input'))})"
+    msg = _clean(error["msg"].removeprefix("Value error, "))  # our own validators' messages
+    if not error["loc"]:  # a check across sections: its message names the keys it concerns
+        return msg
+    return f"'{key}': {msg} (got {_show(error.get('input'))})"
 
 
 def config_from_dict(data: dict[str, Any], source: str = "configuration") -> Config:

@@ -72,7 +72,7 @@ def test_zones_are_validated_with_one_line_errors(tmp_path) -> None:
     assert "\n" not in str(info.value)
     missing = tmp_path / "missing.toml"
     missing.write_text('[sort]\nbelow = "bin"\n')
-    with pytest.raises(ConfigError, match=r"sort.below names zone .bin.*zones: empty, full"):
+    with pytest.raises(ConfigError, match=r"'sort.below' names zone .bin.*zones: empty, full"):
         load_config(missing)
 
 
