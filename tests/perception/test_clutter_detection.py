@@ -433,3 +433,21 @@ def test_a_wide_circle_in_front_does_not_swallow_a_neighbours_wall() -> None:
     uw = np.concatenate([wall, liquid])
     groups = det._merge_contained([np.arange(400), np.arange(400, 520)], uw, np.full(520, 0.7))
     assert [len(m) for m, _, _ in groups] == [520]
+
+
+def test_an_arc_fitted_as_a_wide_circle_does_not_join_neighbours() -> None:
+    """A clear cup's liquid seen over its rim shows only its far edge, a shallow arc whose
+    circle fit is wide (6-8 cm on a synthetic bench) and reached over a canister 6 cm
+    behind; the arc lies in the cup's wall circle, so the two glued the cup to the
+    canister. The canister's wall, larger, with a circle of its own, stays apart; the arc
+    joins the cup's wall."""
+    det = GeometricDetector()
+    canister = _arc(0.0, 0.60, 0.044, 2000, 1.06 * math.pi, 1.94 * math.pi)
+    cup = _arc(0.0, 0.476, 0.034, 500, 1.06 * math.pi, 1.94 * math.pi)
+    edge = _arc(0.0, 0.58, 0.08, 54, 1.5 * math.pi - 0.24, 1.5 * math.pi + 0.24)
+    uw = np.concatenate([canister, cup, edge])
+    fit = det._wall_circle(edge, 0.001)
+    assert fit is not None and math.hypot(*(fit[0] - [0.0, 0.60])) < fit[1]  # reaches over
+    clusters = [np.arange(2000), np.arange(2000, 2500), np.arange(2500, 2554)]
+    groups = det._merge_contained(clusters, uw, np.full(len(uw), 0.7))
+    assert sorted(len(m) for m, _, _ in groups) == [554, 2000]

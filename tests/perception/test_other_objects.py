@@ -129,3 +129,30 @@ def test_liquid_in_a_clear_cup_is_no_can_lid() -> None:
         noisy = exact + rng.normal(0.0, 1.0, exact.shape) * depth_rms_error(exact)
         found = GeometricDetector().detect(bench.frame(np.where(exact > 0, noisy, 0.0)))
         assert [d.label for d in found] == [label]
+
+
+def test_liquid_in_a_clear_cup_before_a_taller_object_is_no_can_lid() -> None:
+    """As above, with an opaque canister standing behind the cup, taller than it: over the
+    cup's clear wall the rays meet the canister and return depth where the wall returns
+    none. The canister's image box covers the wall, but it returns depth itself, so the
+    missing depth there is the cup's. With the wall seen (a can) it stays other."""
+    bench = TiltedBench()
+    foot = bench.table_point(320.0, 330.0)
+    behind = bench.table_point(320.0, 250.0)
+    assert np.linalg.norm(behind - foot) > 0.034 + 0.045 + 0.02  # clear of each other
+    column = bench.vessel(foot, 0.034, 0.06, lid=True)
+    canister = bench.vessel(behind, 0.045, 0.20, lid=True)
+    near, _ = bench.cylinder(foot, 0.034)
+    above = (bench.heights(near) > 0.06) & (bench.heights(near) <= 0.10)
+    rng = np.random.default_rng(5)
+    for front, label in ((column, "other"), (np.where(above, 0.0, column), "cup")):
+        exact = np.where(
+            (front > 0) & (canister > 0), np.minimum(front, canister), np.maximum(front, canister)
+        )
+        exact = np.where(above & (front == 0.0), 0.0, exact)  # the clear wall hides behind
+        noisy = exact + rng.normal(0.0, 1.0, exact.shape) * depth_rms_error(exact)
+        found = GeometricDetector().detect(bench.frame(np.where(exact > 0, noisy, 0.0)))
+        near_one = min(found, key=lambda d: d.center_cam[2])
+        assert len(found) == 2
+        assert near_one.label == label
+        assert [d.label for d in found if d is not near_one] == ["other"]

@@ -499,9 +499,9 @@ class GeometricDetector:
         apart (gaps of a centimetre or more) lie outside each other's circles. Each comes
         with its :meth:`_wall_circle` and whether that was computed (a cluster left alone
         keeps its own, even None or a circle too small or large: the fit need not run again).
-        A cluster is not joined to a smaller one's circle when its own wall circle's axis
-        lies outside that circle: a clear cup's sparse front fits too wide a circle, which
-        reached over the can it touched."""
+        A cluster with a wall circle of its own is not joined to a smaller one's circle: a
+        clear cup's sparse front fits too wide a circle, which reached over the can it
+        touched, and so does the shallow arc of a liquid's far edge seen over a rim."""
         clusters = sorted(clusters, key=len, reverse=True)
         big = [k for k, members in enumerate(clusters) if len(members) >= self.min_points]
         fits: list[_Circle | None] = [None] * len(clusters)
@@ -528,13 +528,10 @@ class GeometricDetector:
             )
             for i in near:
                 own = circles[i]
-                if (
-                    own is not None
-                    and len(clusters[i]) > len(clusters[j])
-                    and math.hypot(*(own[0] - circle[0])) > circle[1]
-                ):
-                    # A larger cluster with a wall of its own about an axis outside this
-                    # circle is a neighbour it reaches (a clear cup's circle, too wide).
+                if own is not None and len(clusters[i]) > len(clusters[j]):
+                    # A larger cluster with a wall of its own takes what lies in its own
+                    # circle; this one may be a neighbour it reaches (a clear cup's circle,
+                    # too wide, or a liquid's far edge, an arc fitted as a wide wall).
                     continue
                 points = uw[clusters[i]]
                 inside = _radial(points, circle[0]) < circle[1] + self.contained_margin
@@ -761,28 +758,25 @@ class GeometricDetector:
         fragment of a clear object's sparse depth): clear plastic or
         glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl.
         One called other for its flat top may be the liquid in a clear cup, the clear wall
-        above returning no depth (:meth:`_clear_above`): a cup. Returns the detections and
-        each one's missing share."""
+        above returning no depth (:meth:`_clear_above`, the boxes of all clear objects left
+        out: above it the rays meet what stands behind, an opaque object returns depth): a
+        cup. Returns the detections and each one's missing share."""
         out = list(detections)
         shares = [0.0] * len(out)
         if self.clear_share >= 1.0:
             return out, shares
         clear_boxes: list[tuple[float, float, float, float]] = []
+        feet = [d.center_cam - 0.5 * d.height * normal for d in detections]
+        centers = [np.array([foot @ e1, foot @ e2]) for foot in feet]
+        solid: list[int] = []
         for i in np.argsort([d.center_cam[2] for d in detections]):  # nearest first
             det = out[i]
-            foot = det.center_cam - 0.5 * det.height * normal
-            center = np.array([foot @ e1, foot @ e2])
             share = self._see_through(
-                frame, center, det.radius, det.height, normal, offset, e1, e2, clear_boxes
+                frame, centers[i], det.radius, det.height, normal, offset, e1, e2, clear_boxes
             )
             shares[i] = share
             if share < self.clear_share:
-                if det.label == "other" and not planar[i]:
-                    # Above it, what stands behind counts no more than nearer clear objects.
-                    behind = [d.box for d in detections if d.center_cam[2] > det.center_cam[2]]
-                    skip = clear_boxes + behind
-                    if self._clear_above(frame, det, center, normal, offset, e1, e2, skip):
-                        out[i] = dataclasses.replace(det, label="cup")
+                solid.append(i)
                 continue
             clear_boxes.append(det.box)
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
@@ -790,8 +784,18 @@ class GeometricDetector:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
                 box = det.box
                 if label == "bottle":
-                    box = bottle_box(frame.intrinsics, foot, normal, det.radius, det.height)
+                    box = bottle_box(frame.intrinsics, feet[i], normal, det.radius, det.height)
                 out[i] = dataclasses.replace(det, label=label, box=box)
+        for i in solid:
+            det = out[i]
+            # Above it, the rays meet what stands behind: missing depth there may be a clear
+            # object's, nearer or behind, whose box is left out; an opaque one returns depth.
+            if (
+                det.label == "other"
+                and not planar[i]
+                and self._clear_above(frame, det, centers[i], normal, offset, e1, e2, clear_boxes)
+            ):
+                out[i] = dataclasses.replace(det, label="cup")
         return out, shares
 
     def _clear_pieces(
