@@ -825,12 +825,15 @@ class GeometricDetector:
         pixel on the strided grid, ``h`` its height), leaving out those within
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
-        its top from ``fragment_min_height`` (lower: clear plastic lying on its side, on
-        ClearGrasp's frames) to below ``bottle_min_height``, its bearings spanning no more
+        its top from ``fragment_min_height`` to below ``bottle_min_height``, its bearings
+        spanning no more
         than ``fragment_max_span`` x the radius at its range (wider: a surface, or something
         lying), is taken for the front of a container of radius
         ``fragment_radius`` (scattered patches do not fix a radius), its centre behind them
-        (:func:`_behind_front`), its height their top. It replaces the group's pieces when it
+        (:func:`_behind_front`), its height their top. A lower group (clear plastic lying
+        on its side, on ClearGrasp's frames, or the liquid in a clear cup) stands that high
+        only when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as
+        that wall. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
         over at least ``clear_share`` of its front (nearer objects' boxes left out): a clear
         cup. Its centre is good to a centimetre or two: enough to count it and to keep a
@@ -867,7 +870,7 @@ class GeometricDetector:
             group = which[labels == label]
             top = self._top(h[group])
             if len(group) < self.fragment_min_points or not (
-                self.fragment_min_height <= top < self.bottle_min_height
+                self.min_object_height <= top < self.bottle_min_height
             ):
                 continue
             bearings = np.arctan2(uw[group, 1], uw[group, 0])
@@ -882,6 +885,12 @@ class GeometricDetector:
                 continue
             far = math.hypot(*center)
             nearer = [detections[k].box for k in solid if math.hypot(*feet[k][0]) < far]
+            if top < self.fragment_min_height:
+                # Low pieces: clear plastic lying, or the liquid in a clear cup, whose wall
+                # above returns no depth where what stands behind it would.
+                top = self._clear_wall_top(frame, center, radius, top, normal, offset, e1, e2)
+                if top < self.fragment_min_height:
+                    continue
             share = self._see_through(frame, center, radius, top, normal, offset, e1, e2, nearer)
             if share < self.clear_share:
                 continue
@@ -902,6 +911,51 @@ class GeometricDetector:
             feet.append((center, radius))
             replaced.update(int(k) for k in np.unique(owner[group]) if k >= 0)
         return [d for k, d in enumerate(detections) if k not in replaced] + added
+
+    def _clear_wall_top(
+        self,
+        frame: RGBDFrame,
+        center: Array,
+        radius: float,
+        top: float,
+        normal: Array,
+        offset: float,
+        e1: Array,
+        e2: Array,
+        step: float = 0.01,
+    ) -> float:
+        """The top of a clear wall standing on what was seen up to ``top``: climbing in
+        ``step`` bands of :meth:`_see_through` samples (three rows) over the object's front,
+        while a band, or the one above it (a patch may show what is behind), returns no
+        depth over at least ``clear_share`` of it and the table or whatever stands beside
+        the object at those heights (1.5 radii to either side) returns depth on each side
+        (two of three rows), up to ``bottle_min_height``. ``top`` itself when the first band
+        returns depth (above a can the rays meet what stands behind). With no depth beside
+        it (beyond the table's far edge) nothing is judged, nor with none on one side: a
+        clear bottle lying across the view (ClearGrasp's frames) is clear beside its pieces
+        along its length."""
+        to_cam = -center / max(math.hypot(*center), 1e-9)
+        lateral = np.array([-to_cam[1], to_cam[0]])
+        beside = center + np.outer([-1.5 * radius, 1.5 * radius], lateral)
+        raised = top
+        for low in np.arange(top, self.bottle_min_height - step, step):
+            heights = low + step * np.array([0.2, 0.5, 0.8])
+            p_cam = (beside[:, :1] * e1 + beside[:, 1:] * e2 - offset * normal)[
+                :, None, :
+            ] + heights[None, :, None] * normal
+            uv, ok = _in_image(frame.intrinsics, p_cam.reshape(-1, 3))
+            seen = np.zeros(len(ok), dtype=bool)
+            seen[ok] = _depth_at(frame, uv[ok]) > 0.0
+            if (seen.reshape(2, -1).sum(axis=1) < 2).any():
+                break  # no depth beside it on a side: nothing to judge by, or it lies
+            share = self._see_through(
+                frame, center, radius, top, normal, offset, e1, e2, (), heights
+            )
+            if share >= self.clear_share:
+                raised = low + step
+            elif low > raised:
+                break  # two bands in a row: one may be a patch showing what is behind
+        return raised
 
     def _clear_above(
         self,
