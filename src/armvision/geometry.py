@@ -2,10 +2,13 @@
 
 Convention (ARCHITECTURE.md): ``T_a_b`` is the pose of frame b in frame a, a 4x4 homogeneous
 matrix, so ``p_a = T_a_b @ p_b`` and ``T_a_c = T_a_b @ T_b_c``. Points are ``(N, 3)`` arrays.
-Rotation parametrisations are delegated to ``scipy.spatial.transform.Rotation``.
+Rotation parametrisations are delegated to ``scipy.spatial.transform.Rotation``, except the
+single-rotation :func:`rotation_between`, written out for speed.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -103,8 +106,8 @@ def as_xyz(p: ArrayLike) -> tuple[float, float, float]:
 def cross3(a: ArrayLike, b: ArrayLike) -> Array:
     """a x b for two 3-vectors. Written out: np.cross costs ~15x as much per call on single
     vectors (its axis handling), and perception takes a few per object per frame."""
-    a0, a1, a2 = (float(v) for v in np.ravel(a))
-    b0, b1, b2 = (float(v) for v in np.ravel(b))
+    a0, a1, a2 = np.asarray(a, dtype=float).ravel().tolist()
+    b0, b1, b2 = np.asarray(b, dtype=float).ravel().tolist()
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
@@ -115,18 +118,50 @@ def skew(v: ArrayLike) -> Array:
 
 
 def rotation_between(a: ArrayLike, b: ArrayLike) -> Array:
-    """The smallest rotation taking unit direction ``a`` onto unit direction ``b``."""
-    u = np.asarray(a, dtype=float) / np.linalg.norm(a)
-    w = np.asarray(b, dtype=float) / np.linalg.norm(b)
-    axis = np.cross(u, w)
-    s, c = np.linalg.norm(axis), float(np.dot(u, w))
+    """The smallest rotation taking unit direction ``a`` onto unit direction ``b``.
+
+    Rodrigues' formula R = I + sin(theta) K + 2 sin^2(theta / 2) K^2 (K = [k]x, k the unit
+    axis a x b) on plain floats: scipy's Rotation.from_rotvec costs ~20x as much for one
+    rotation, and the tag poses take one per tag per frame. Opposite directions: a turn by
+    pi about an axis normal to ``a``, R = 2 k k^T - I. A zero direction gives NaNs.
+    """
+    a0, a1, a2 = np.asarray(a, dtype=float).ravel().tolist()
+    b0, b1, b2 = np.asarray(b, dtype=float).ravel().tolist()
+    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if not (na > 0.0 and nb > 0.0):
+        return np.full((3, 3), np.nan)
+    u0, u1, u2 = a0 / na, a1 / na, a2 / na
+    w0, w1, w2 = b0 / nb, b1 / nb, b2 / nb
+    k0, k1, k2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+    s = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
+    c = u0 * w0 + u1 * w1 + u2 * w2
     if s < 1e-12:
         if c > 0:
             return np.eye(3)
         # Opposite directions: turn by pi about any axis normal to a.
-        normal = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-        return Rotation.from_rotvec(np.pi * normal / np.linalg.norm(normal)).as_matrix()
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+        k0, k1, k2 = (0.0, u2, -u1) if abs(u0) < 0.9 else (-u2, 0.0, u0)  # u x e_x or u x e_y
+        n = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
+        k0, k1, k2 = k0 / n, k1 / n, k2 / n
+        return np.array(
+            [
+                [2.0 * k0 * k0 - 1.0, 2.0 * k0 * k1, 2.0 * k0 * k2],
+                [2.0 * k1 * k0, 2.0 * k1 * k1 - 1.0, 2.0 * k1 * k2],
+                [2.0 * k2 * k0, 2.0 * k2 * k1, 2.0 * k2 * k2 - 1.0],
+            ]
+        )
+    k0, k1, k2 = k0 / s, k1 / s, k2 / s
+    theta = math.atan2(s, c)
+    st = math.sin(theta)
+    vt = 2.0 * math.sin(0.5 * theta) ** 2  # 1 - cos(theta), without the cancellation
+    # I + st K + vt (k k^T - I)
+    return np.array(
+        [
+            [1.0 - vt + vt * k0 * k0, vt * k0 * k1 - st * k2, vt * k0 * k2 + st * k1],
+            [vt * k1 * k0 + st * k2, 1.0 - vt + vt * k1 * k1, vt * k1 * k2 - st * k0],
+            [vt * k2 * k0 - st * k1, vt * k2 * k1 + st * k0, 1.0 - vt + vt * k2 * k2],
+        ]
+    )
 
 
 def adjoint(T_a_b: ArrayLike) -> Array:

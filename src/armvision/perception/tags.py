@@ -26,6 +26,7 @@ them in the right order.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -34,10 +35,17 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
+from armvision.camera.frames import (
+    Intrinsics,
+    RGBDFrame,
+    deproject,
+    distort,
+    project,
+    undistort,
+)
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3, make_T, rotation_between
-from armvision.perception.fitting import fit_plane
+from armvision.perception.fitting import fit_plane, unit_depth_rays
 
 Array = NDArray[np.float64]
 
@@ -51,6 +59,12 @@ FAMILIES = (
     "tagStandard41h12",
     "tagStandard52h13",
 )
+
+#: The step of :meth:`TagDetector._fused_normal`'s numerical Jacobian, and the rotations by
+#: it about the camera's x, y and z axes (constant, so made once, not six Rodrigues per tag).
+_NUDGE = 1e-6
+_NUDGE_SHIFTS = np.eye(3) * _NUDGE
+_NUDGE_ROTATIONS = np.array([cv2.Rodrigues(shift)[0] for shift in _NUDGE_SHIFTS])
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,8 +136,26 @@ def tag_object_points(tag_size: float) -> Array:
 
 
 def _normalised(intr: Intrinsics, uv: Array) -> Array:
-    """Undistorted normalised image coordinates (x/z, y/z) of pixels, any librealsense model."""
-    return deproject(intr, uv, np.ones(len(uv)))[:, :2]
+    """Undistorted normalised image coordinates (x/z, y/z) of pixels (N, 2), any librealsense
+    model: :func:`deproject`'s at depth 1, without its checks and (N, 3) result."""
+    xy = np.empty((len(uv), 2))
+    xy[:, 0], xy[:, 1] = undistort(
+        intr, (uv[:, 0] - intr.ppx) / intr.fx, (uv[:, 1] - intr.ppy) / intr.fy
+    )
+    return xy
+
+
+def _project(intr: Intrinsics, points: Array) -> Array:
+    """:func:`project` of points (N, 3), the same pixels, without its per-call overheads when
+    all the points are in front of the camera (as a tag's corners are)."""
+    z = points[:, 2]
+    if not (z > 0.0).all():
+        return project(intr, points)
+    x, y = distort(intr, points[:, 0] / z, points[:, 1] / z)
+    uv = np.empty((len(points), 2))
+    uv[:, 0] = x * intr.fx + intr.ppx
+    uv[:, 1] = y * intr.fy + intr.ppy
+    return uv
 
 
 def _ippe_solutions(object_points: Array, xy: Array) -> list[tuple[Array, float]]:
@@ -144,8 +176,11 @@ def _ippe_solutions(object_points: Array, xy: Array) -> list[tuple[Array, float]
 
 
 def _tag_depth_points(intr: Intrinsics, depth: NDArray, corners: Array, shrink: float) -> Array:
-    """3-D points of the valid depth pixels inside the tag quad shrunk toward its centre."""
-    centre = corners.mean(axis=0)
+    """3-D points of the valid depth pixels inside the tag quad shrunk toward its centre.
+
+    The pixels' rays come from the per-intrinsics cache of :func:`unit_depth_rays` when the
+    depth image has the intrinsics' size (the same points as :func:`deproject`, cheaper)."""
+    centre = corners.sum(axis=0) / len(corners)  # corners.mean(axis=0), without its overhead
     quad = centre + shrink * (corners - centre)
     x0, y0 = np.floor(quad.min(axis=0)).astype(int)
     x1, y1 = np.ceil(quad.max(axis=0)).astype(int)
@@ -156,11 +191,16 @@ def _tag_depth_points(intr: Intrinsics, depth: NDArray, corners: Array, shrink: 
     mask = np.zeros((y1 - y0 + 1, x1 - x0 + 1), dtype=np.uint8)
     cv2.fillConvexPoly(mask, np.round(quad - [x0, y0]).astype(np.int32), 1)
     patch = depth[y0 : y1 + 1, x0 : x1 + 1]
-    rows, cols = np.nonzero(mask.astype(bool) & (patch > 0))
-    if len(rows) == 0:
+    valid = mask.view(bool) & (patch > 0)  # the mask holds 0 and 1: a bool view
+    z = patch[valid].astype(float)
+    if len(z) == 0:
         return np.empty((0, 3))
+    if (h, w) == (intr.height, intr.width):
+        rays = unit_depth_rays(intr, 1)[0].reshape(h, w, 3)
+        return rays[y0 : y1 + 1, x0 : x1 + 1][valid] * z[:, None]
+    rows, cols = np.nonzero(valid)
     uv = np.column_stack([cols + x0, rows + y0]).astype(float)
-    return deproject(intr, uv, patch[rows, cols].astype(float))
+    return deproject(intr, uv, z)
 
 
 class TagDetector:
@@ -261,8 +301,10 @@ class TagDetector:
 
     def _pose(self, raw, intr: Intrinsics, depth: NDArray | None) -> TagDetection | None:
         corners = np.asarray(raw.corners, dtype=float)
-        xy = _normalised(intr, corners)
-        solutions = _ippe_solutions(self._object_points, xy)
+        center = np.asarray(raw.center, dtype=float)
+        # The corners' and the centre's rays in one call (the centre's for the depth plane).
+        xy = _normalised(intr, np.concatenate([corners, center[None]]))
+        solutions = _ippe_solutions(self._object_points, xy[:4])
         if not solutions:
             return None
         solutions.sort(key=lambda s: s[1])
@@ -278,14 +320,16 @@ class TagDetector:
             if plane is not None:
                 into = -plane.normal  # the plate's normal away from the camera, as the tag's z
                 # The PnP solution whose tag normal (z, into the tag) agrees with the plane.
-                angles = [np.arccos(np.clip(T[:3, 2] @ into, -1.0, 1.0)) for T, _ in solutions]
+                angles = [
+                    math.acos(min(max(float(T[:3, 2] @ into), -1.0), 1.0)) for T, _ in solutions
+                ]
                 best = int(np.argmin(angles))
                 if angles[best] <= self.max_normal_disagreement:
                     flipped = best != 0
                     T_pnp = solutions[best][0]
                     normal = self._fused_normal(T_pnp, corners, intr, points, into, plane.rms)
                     R = rotation_between(T_pnp[:3, 2], normal) @ T_pnp[:3, :3]
-                    ray = np.append(_normalised(intr, np.asarray(raw.center, float)[None])[0], 1.0)
+                    ray = np.append(xy[4], 1.0)
                     p_centre = ray * plane.offset / (into @ ray)
                     T_cam_tag = make_T(R, p_centre)
                     refined, plane_rms = True, plane.rms
@@ -294,7 +338,7 @@ class TagDetector:
             id=int(raw.tag_id),
             family=self.family,
             corners=corners,
-            center=np.asarray(raw.center, dtype=float),
+            center=center,
             T_cam_tag=T_cam_tag,
             decision_margin=float(raw.decision_margin),
             hamming=int(raw.hamming),
@@ -323,41 +367,47 @@ class TagDetector:
         n = T_pnp[:3, 2]
         a = T_pnp[:3, 0]
         b = T_pnp[:3, 1]
+        R_pnp, t_pnp = T_pnp[:3, :3], T_pnp[:3, 3]
         # Reprojection Jacobian w.r.t. a small rotation (camera frame) and translation.
         # The corners at the pose and at the six nudged poses, projected in one call.
-        eps = 1e-6
-        posed = [self._object_points @ T_pnp[:3, :3].T + T_pnp[:3, 3]]
-        for k in range(6):
-            delta = np.zeros(6)
-            delta[k] = eps
-            R = cv2.Rodrigues(delta[:3])[0] @ T_pnp[:3, :3]
-            posed.append(self._object_points @ R.T + T_pnp[:3, 3] + delta[3:])
-        uv = project(intr, np.concatenate(posed)).reshape(7, -1)
-        J = (uv[1:] - uv[0]).T / eps
+        posed = np.empty((7, 4, 3))
+        posed[0] = self._object_points @ R_pnp.T + t_pnp
+        posed[1:4] = self._object_points @ (_NUDGE_ROTATIONS @ R_pnp).transpose(0, 2, 1) + t_pnp
+        posed[4:] = posed[0] + _NUDGE_SHIFTS[:, None]
+        uv = _project(intr, posed.reshape(-1, 3)).reshape(7, -1)
+        J = (uv[1:] - uv[0]).T / _NUDGE
         sigma_px = self.corner_sigma_px
         if sigma_px is None:
             residual = uv[0].reshape(-1, 2) - corners
-            sigma_px = max(float(np.sqrt(np.sum(residual**2) / 2.0)), 0.05)
+            sigma_px = max(math.sqrt(float((residual * residual).sum()) / 2.0), 0.05)
         try:
             C_pose = sigma_px**2 * np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
             return plane_normal
         # dn = dtheta x n, so the tilt along a is dtheta . (n x a).
-        J_tilt = np.stack([cross3(n, a), cross3(n, b)])
-        C_pnp = J_tilt @ C_pose[:3, :3] @ J_tilt.T
-        spread = points - points.mean(axis=0)
-        A = np.column_stack([spread @ a, spread @ b])
-        sigma_r = max(plane_rms, 1e-4)
-        try:
-            C_depth = sigma_r**2 * np.linalg.inv(A.T @ A)
-            gain = C_pnp @ np.linalg.inv(C_pnp + C_depth)
-        except np.linalg.LinAlgError:
+        J_tilt = np.array([cross3(n, a), cross3(n, b)])
+        (p00, p01), (p10, p11) = (J_tilt @ C_pose[:3, :3] @ J_tilt.T).tolist()
+        # (The mean as a product: an axis-0 sum of a few hundred rows costs several times more.)
+        spread = points - np.ones(len(points)) @ points / len(points)
+        A = spread @ T_pnp[:3, :2]  # the spread along a and b
+        (m00, m01), (m10, m11) = (A.T @ A).tolist()
+        # The 2x2 inverses written out: np.linalg.inv's call costs more than the arithmetic.
+        det = m00 * m11 - m01 * m10
+        if det == 0.0:
             return n
-        d = np.array([plane_normal @ a, plane_normal @ b])
-        tilt = gain @ d
-        fused = n + tilt[0] * a + tilt[1] * b
-        return fused / np.linalg.norm(fused)
+        sigma_r = max(plane_rms, 1e-4)
+        k = sigma_r**2 / det  # C_depth = sigma_r^2 (A^T A)^-1
+        s00, s01, s10, s11 = p00 + k * m11, p01 - k * m01, p10 - k * m10, p11 + k * m00
+        det = s00 * s11 - s01 * s10  # of S = C_pnp + C_depth
+        if det == 0.0:
+            return n
+        d0, d1 = float(plane_normal @ a), float(plane_normal @ b)
+        y0, y1 = (s11 * d0 - s01 * d1) / det, (s00 * d1 - s10 * d0) / det  # S^-1 d
+        tilt0, tilt1 = p00 * y0 + p01 * y1, p10 * y0 + p11 * y1  # C_pnp S^-1 d
+        fused = n + tilt0 * a + tilt1 * b
+        return fused / math.sqrt(float(fused @ fused))
 
     def _reprojection_rms(self, T_cam_tag: Array, corners: Array, intr: Intrinsics) -> float:
         p_cam = self._object_points @ T_cam_tag[:3, :3].T + T_cam_tag[:3, 3]
-        return float(np.sqrt(np.mean(np.sum((project(intr, p_cam) - corners) ** 2, axis=1))))
+        error = _project(intr, p_cam) - corners
+        return math.sqrt(float((error * error).sum(axis=1).sum()) / len(error))
