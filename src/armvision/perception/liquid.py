@@ -119,7 +119,8 @@ class LiquidLevel:
     liquid surface (on the bottle's axis for ``profile``; None when unknown); ``confidence``
     0..1; ``colour`` the liquid's median RGB, None when empty or unknown; ``debug`` an RGB crop
     of the box with the measurement drawn. ``level_m`` and ``body_height_m`` (``profile``
-    only): the liquid surface and the body top (the shoulder) above the table, metres;
+    only): the liquid surface and the body top (the shoulder) above the table, metres (the
+    body top the box fit's shoulder prior when the first look found the wall opaque);
     ``level_colour_m`` and ``level_depth_m`` what each cue alone said (None: no evidence).
     """
 
@@ -893,6 +894,19 @@ class LiquidLevelMeter:
         # when it reaches the top: then no ray passed the bottle anywhere, the mark of an
         # opaque wall (or a view the depth cannot tell), which says nothing about the body.
         first = self._depth_level(rays, bf.top - 0.01)
+        if (first is None or first[0] >= bf.top - self.cap_m) and (
+            bf.misfit_px <= self.max_misfit * (x1 - x0)
+        ):
+            # No line of sight passes the bottle below its top. If the wall also returns
+            # depth over the body (taken at the box fit's shoulder), it is opaque wherever
+            # the shoulder is: the search for it, a refit and the full look are not needed.
+            prior = self.body_fraction * bf.top
+            unknown = self._why_unseen(frame, bf, prior, rays, None if first is None else first[0])
+            if unknown is not None and unknown.startswith(OPAQUE):
+                debug = self._debug(frame, ibox, bf, None, prior, None)
+                return LiquidLevel(
+                    None, None, 0.0, None, "profile", debug, body_height_m=prior, unknown=unknown
+                )
         floor = self.min_body_fraction * bf.top
         if first is not None and first[0] < bf.top - self.cap_m:
             floor = max(floor, first[0] - 0.003, self._wall_top(rays, bf) - 0.005)
