@@ -58,6 +58,27 @@ def test_a_tall_closed_top_without_a_neck_is_other_a_bottle_cap_is_not() -> None
     assert _classify(bottle, 0.032, 0.21) == "bottle"
 
 
+def _band(radius: float, low: float, high: float, n: int) -> np.ndarray:
+    """A camera-facing half wall of ``radius`` about (0, 0.6) between two heights."""
+    points = _wall(radius, 1.0, n)
+    points[:, 2] = RNG.uniform(low, high, n)
+    return points
+
+
+def test_a_wide_cap_over_a_partly_seen_body_is_a_bottle() -> None:
+    """A sports bottle's cap is 0.85 x its body's radius (no neck: the shoulder is short),
+    and a wall seen in part fits a circle narrower than its points' spread (0.031 for a
+    0.035 body): against that circle the cap looked as wide as the body, a canister. The
+    body's own spread, slice by slice, is the measure. A canister under the same narrow
+    circle, even with a neighbour's points in one slice, stays other."""
+    body, cap = _band(0.035, 0.005, 0.20, 700), _band(0.030, 0.205, 0.225, 120)
+    bottle = np.concatenate([body, cap, _disc(0.029, 0.225, 60)])
+    assert _classify(bottle, 0.031, 0.225) == "bottle"
+    neighbour = _band(0.09, 0.02, 0.04, 80)  # far out, in the 2-4 cm slice
+    canister = np.concatenate([_band(0.035, 0.005, 0.225, 820), neighbour])
+    assert _classify(canister, 0.031, 0.225) == "other"
+
+
 def test_a_wide_short_open_object_is_a_bowl() -> None:
     bowl = np.concatenate([_wall(0.065, 0.055), _disc(0.03, 0.02)])
     assert _classify(bowl, 0.065, 0.055) == "other"

@@ -161,7 +161,9 @@ class GeometricDetector:
     gap of at least ``bottle_gap`` with no points in the height profile under something narrow
     (below ``gap_top_ratio`` x the radius: a cap, not a clear cup's rim). A tall object with
     no neck and no gap is other when its top ``top_band`` is as wide as the body (75th
-    percentile at least ``wide_top_ratio`` x the radius: a can stack or canister). A closed
+    percentile of distances from the axis at least ``wide_top_ratio`` x the radius or, if
+    larger, x the median over 2 cm slices below of the same percentile: a can stack or
+    canister; a partly seen wall fits a circle narrower than its points). A closed
     top: of the points inside the rim (nearer the axis than ``closed_top_inner`` x the radius,
     at least ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies
     within ``closed_top_tolerance`` of the rim (the near wall's 99th-percentile height, at
@@ -1307,6 +1309,18 @@ class GeometricDetector:
             band = h > top - self.top_band
             c, r_body = self._widened(center, radius, h, top)
             r_top = _radial(uw[band], c)
+            # The same statistic below the band, 2 cm slice by slice, the median slice: a
+            # circle fitted to a partly seen wall may be narrower than its points' spread
+            # about it; the median leaves out a slice with a neighbour's points in it.
+            r_all = _radial(uw, c)
+            slices = np.minimum((h / 0.02).astype(np.intp), int(top / 0.02))
+            below = h <= top - self.top_band
+            per_slice = [
+                _percentile(r_all[below & (slices == k)], 75.0)
+                for k in np.flatnonzero(np.bincount(slices[below]) >= 8)
+            ]
+            if per_slice:
+                r_body = max(r_body, float(np.median(per_slice)))
             if _percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
                 return "other"
         if top >= self.bottle_min_height or neck or capped:
