@@ -74,6 +74,10 @@ class _Cluster(NamedTuple):
 _RING_COS, _RING_SIN = (
     f(np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False))[:, None] for f in (np.cos, np.sin)
 )
+#: :meth:`GeometricDetector._see_through`'s samples across the front (x the radius) and up
+#: it (x the height), made once: np.linspace costs more per call than the rest of a row.
+_SEE_ACROSS = np.linspace(-0.6, 0.6, 7)
+_SEE_UP = np.linspace(0.15, 0.85, 8)
 
 
 def cylinder_box(
@@ -360,12 +364,12 @@ class GeometricDetector:
         # Only the strided pixels, row by row as the rays: a slice, not unit_depth_rays'
         # flat indices (a third of the gather's time).
         z = depth[:: self.pixel_stride, :: self.pixel_stride].astype(np.float64).ravel()
-        normal, offset = self._table_plane(z, rays, T_base_cam)
+        in_range = (z > 0.0) & (z < self.max_range)
+        normal, offset = self._table_plane(z, rays, in_range, T_base_cam)
         self.last_plane = (normal, offset)
         # Height of every pixel above the table: n.(z ray) + d, without building the cloud.
         h = z * (rays @ normal) + offset
-        candidate = (z > 0.0) & (z < self.max_range)
-        candidate &= (h > self.min_height) & (h < self.max_height)
+        candidate = in_range & (h > self.min_height) & (h < self.max_height)
         idx = np.flatnonzero(candidate)
         if self.edge_jump > 0.0:
             idx = idx[~self._depth_edges(z, intr, idx)]
@@ -415,8 +419,12 @@ class GeometricDetector:
 
     # ---------------------------------------------------------------- steps
 
-    def _table_plane(self, z: Array, rays: Array, T_base_cam: Array | None) -> tuple[Array, float]:
-        valid = np.flatnonzero((z > 0.0) & (z < self.max_range))
+    def _table_plane(
+        self, z: Array, rays: Array, in_range: NDArray[np.bool_], T_base_cam: Array | None
+    ) -> tuple[Array, float]:
+        """The table plane (normal toward the camera, offset) by RANSAC on a random sample
+        of the pixels ``in_range`` (with depth, nearer than ``max_range``)."""
+        valid = np.flatnonzero(in_range)
         if len(valid) < 100:
             raise PerceptionError(
                 "the depth image is (nearly) empty: is the camera's depth stream running and "
@@ -448,19 +456,23 @@ class GeometricDetector:
             )
         return plane.normal, plane.offset
 
-    def _depth_edges(self, z: Array, intr: Intrinsics, idx: NDArray[np.intp]) -> NDArray[np.bool_]:
-        """Which of the pixels ``idx`` (of the strided grid, flat; with depth) have a 3x3
+    def _depth_edges(
+        self, z: Array, intr: Intrinsics, idx: NDArray[np.intp] | None = None
+    ) -> NDArray[np.bool_]:
+        """Which pixels (of the strided grid, flat: those of ``idx``, default all) have a 3x3
         neighbourhood spanning a depth range above ``edge_jump`` (or 5 x Intel's depth noise
-        there, if larger): occluding contours and the flying pixels a depth camera puts
-        along them, which would join objects standing apart. Faces seen at a grazing angle
-        go too (their depth changes fast). The range is judged at those pixels alone, the
-        candidates, a fraction of the grid."""
+        there, if larger) and depth themselves: occluding contours and the flying pixels a
+        depth camera puts along them, which would join objects standing apart. Faces seen
+        at a grazing angle go too (their depth changes fast). :meth:`detect` asks about its
+        candidates alone, a fraction of the grid."""
         s = self.pixel_stride
         grid = z.reshape(-(-intr.height // s), -(-intr.width // s)).astype(np.float32)
         kernel = np.ones((3, 3), np.uint8)
-        near = cv2.erode(np.where(grid > 0, grid, np.float32(1e3)), kernel).ravel()[idx]
-        far = cv2.dilate(grid, kernel).ravel()[idx]
-        at = grid.ravel()[idx]
+        near = cv2.erode(np.where(grid > 0, grid, np.float32(1e3)), kernel).ravel()
+        far = cv2.dilate(grid, kernel).ravel()
+        at = grid.ravel()
+        if idx is not None:
+            near, far, at = near[idx], far[idx], at[idx]
         limit = np.maximum(self.edge_jump, 5.0 * depth_rms_error(at))
         return (far - near > limit) & (at > 0)
 
@@ -1022,8 +1034,8 @@ class GeometricDetector:
         to judge by."""
         to_cam = -center / max(math.hypot(*center), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
-        t = radius * np.linspace(-0.6, 0.6, 7)
-        hs = top * np.linspace(0.15, 0.85, 8) if heights is None else heights
+        t = radius * _SEE_ACROSS
+        hs = top * _SEE_UP if heights is None else heights
         uw = center + np.outer(np.sqrt(radius**2 - t**2), to_cam) + np.outer(t, lateral)
         base = uw[:, :1] * e1 + uw[:, 1:] * e2 - offset * normal
         p_cam = (base[None, :, :] + hs[:, None, None] * normal).reshape(-1, 3)
