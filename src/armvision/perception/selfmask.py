@@ -90,26 +90,30 @@ def self_mask(
     if len(p_cam) == 0:
         return keep
     p_base = transform_points(T_base_cam, p_cam)
-    keep &= np.hypot(p_base[:, 0], p_base[:, 1]) < workspace_radius
+    # Contiguous columns: comparisons on them cost a fraction of those on (N, 3) rows.
+    x, y, z = np.ascontiguousarray(p_base.T)
+    keep &= np.hypot(x, y) < workspace_radius
     if joint_positions is not None:
         a, b, radii = arm_capsules_base(joint_positions, capsules, model)
     else:  # the base does not move: drop it even without joint angles
         base = capsules[0]
         a, b = np.array([base[0]], float), np.array([base[1]], float)
         radii = np.array([base[2]], float)
-    # Only points inside some capsule's bounding box can be within it: the distances to
-    # the segments are computed for those alone (most of a table's points are far away).
-    reach = (radii + margin)[:, None]
-    lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
+    # Only points inside a capsule's bounding box can be within it: the distances to its
+    # segment are computed for those alone (most of a table's points are far away).
+    reach = radii + margin
+    lo, hi = np.minimum(a, b) - reach[:, None], np.maximum(a, b) + reach[:, None]
     # First against the box around them all (one test per point), then per capsule.
-    keep_in = keep & np.all((p_base >= lo.min(axis=0)) & (p_base <= hi.max(axis=0)), axis=1)
-    inside = np.flatnonzero(keep_in)
-    p_in = p_base[inside]
-    boxed: NDArray[np.bool_] = np.all(
-        (p_in[:, None, :] >= lo[None]) & (p_in[:, None, :] <= hi[None]), axis=2
+    (x0, y0, z0), (x1, y1, z1) = lo.min(axis=0), hi.max(axis=0)
+    inside = np.flatnonzero(
+        keep & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)
     )
-    near = np.any(boxed, axis=1)
-    check = inside[near]
-    near_arm = (segment_distances(p_base[check], a, b) < radii + margin).any(axis=1)
-    keep[check[near_arm]] = False
+    x, y, z = x[inside], y[inside], z[inside]
+    for k, ((x0, y0, z0), (x1, y1, z1)) in enumerate(zip(lo, hi)):
+        boxed = np.flatnonzero(
+            (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)
+        )
+        if len(boxed):
+            near = segment_distances(p_base[inside[boxed]], a[k : k + 1], b[k : k + 1])
+            keep[inside[boxed[near[:, 0] < reach[k]]]] = False
     return keep
