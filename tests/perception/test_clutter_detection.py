@@ -426,12 +426,16 @@ def test_a_wide_circle_in_front_does_not_swallow_a_neighbours_wall() -> None:
     can = _arc(0.0, 0.70, 0.034, 600, 1.06 * math.pi, 1.94 * math.pi)
     clear = _arc(0.0, 0.645, 0.05, 150, 1.2 * math.pi, 1.8 * math.pi)
     uw = np.concatenate([can, clear])
-    groups = det._merge_contained([np.arange(600), np.arange(600, 750)], uw, np.full(750, 0.7))
+    groups = det._merge_contained(
+        [np.arange(600), np.arange(600, 750)], uw, np.full(750, 0.7), np.full(750, 0.05)
+    )
     assert sorted(len(m) for m, _, _ in groups) == [150, 600]
     wall = _arc(0.0, 0.70, 0.034, 400, 1.06 * math.pi, 1.94 * math.pi)
     liquid = _disc(0.028, 0.07, 120)[:, :2] + [0.0, 0.10]  # about (0, 0.70)
     uw = np.concatenate([wall, liquid])
-    groups = det._merge_contained([np.arange(400), np.arange(400, 520)], uw, np.full(520, 0.7))
+    groups = det._merge_contained(
+        [np.arange(400), np.arange(400, 520)], uw, np.full(520, 0.7), np.full(520, 0.05)
+    )
     assert [len(m) for m, _, _ in groups] == [520]
 
 
@@ -449,5 +453,29 @@ def test_an_arc_fitted_as_a_wide_circle_does_not_join_neighbours() -> None:
     fit = det._wall_circle(edge, 0.001)
     assert fit is not None and math.hypot(*(fit[0] - [0.0, 0.60])) < fit[1]  # reaches over
     clusters = [np.arange(2000), np.arange(2000, 2500), np.arange(2500, 2554)]
-    groups = det._merge_contained(clusters, uw, np.full(len(uw), 0.7))
+    groups = det._merge_contained(clusters, uw, np.full(len(uw), 0.7), np.full(len(uw), 0.05))
     assert sorted(len(m) for m, _, _ in groups) == [554, 2000]
+
+
+def test_a_cups_inner_wall_clustered_with_what_stands_behind_goes_back_to_the_cup() -> None:
+    """An open cup in front of a bottle it nearly touches: over the rim the camera sees the
+    cup's inner far wall at about the depth of the bottle's front, and the two clustered
+    together, leaving the cup with no inside (so it was called other, a closed can). Points
+    inside a cup's wall circle and below its rim are the cup's, whatever they clustered
+    with; the bottle keeps its own."""
+    det = GeometricDetector()
+    wall = _arc(0.0, 0.60, 0.034, 600, 1.06 * math.pi, 1.94 * math.pi)
+    wall_h = RNG.uniform(0.005, 0.095, 600)
+    inner = _arc(0.0, 0.60, 0.031, 120, 0.15 * math.pi, 0.85 * math.pi)  # far side
+    inner_h = RNG.uniform(0.03, 0.08, 120)
+    bottle = _arc(0.0, 0.60 + 0.034 + 0.033 + 0.004, 0.033, 900, 1.06 * math.pi, 1.94 * math.pi)
+    bottle_h = RNG.uniform(0.10, 0.22, 900)  # above the cup's rim: below it, the cup hides it
+    uw = np.concatenate([wall, inner, bottle])
+    h = np.concatenate([wall_h, inner_h, bottle_h])
+    groups = det._merge_contained(
+        [np.arange(600), np.arange(600, 1620)], uw, np.full(len(uw), 0.7), h
+    )
+    members = sorted((np.sort(m) for m, _, _ in groups), key=len)
+    assert [len(m) for m in members] == [720, 900]
+    assert np.array_equal(members[0], np.arange(720))  # the wall and its inside
+    assert all(fitted is False for _, _, fitted in groups)  # both changed: fitted again

@@ -386,7 +386,7 @@ class GeometricDetector:
         order = np.argsort(labels, kind="stable")
         bounds = np.flatnonzero(np.diff(labels[order])) + 1
         clusters = [m for m in np.split(order, bounds) if labels[m[0]] > 0]
-        groups = self._merge_contained(clusters, uw, p_cam[:, 2])
+        groups = self._merge_contained(clusters, uw, p_cam[:, 2], h[idx])
         found = self._fit_clusters(
             frame,
             [
@@ -513,7 +513,7 @@ class GeometricDetector:
         return components[cell[:, 1] + 1, cell[:, 0] + 1].astype(np.int32)
 
     def _merge_contained(
-        self, clusters: list[NDArray[np.intp]], uw: Array, z: Array
+        self, clusters: list[NDArray[np.intp]], uw: Array, z: Array, h: Array
     ) -> list[tuple[NDArray[np.intp], _Circle | None, bool]]:
         """Clusters with a point count of at least ``min_points`` after joining every cluster
         lying inside another's wall circle to it (at least ``contained_fraction`` of its
@@ -525,7 +525,9 @@ class GeometricDetector:
         keeps its own, even None or a circle too small or large: the fit need not run again).
         A cluster with a wall circle of its own is not joined to a smaller one's circle: a
         clear cup's sparse front fits too wide a circle, which reached over the can it
-        touched, and so does the shallow arc of a liquid's far edge seen over a rim."""
+        touched, and so does the shallow arc of a liquid's far edge seen over a rim. First,
+        a vessel takes back its inside from the clusters it joined (:meth:`_reclaim_insides`;
+        ``h`` is each point's height); those clusters are fitted again."""
         clusters = sorted(clusters, key=len, reverse=True)
         big = [k for k, members in enumerate(clusters) if len(members) >= self.min_points]
         fits: list[_Circle | None] = [None] * len(clusters)
@@ -539,6 +541,7 @@ class GeometricDetector:
         # A circle too small or large is not a container's wall: it contains nothing.
         circles = [fit if fit is not None and self._radius_ok(fit[1]) else None for fit in fits]
         n = len(clusters)
+        changed = self._reclaim_insides(clusters, circles, uw, z, h)
         joins = np.eye(n, dtype=bool)
         # Every cluster's bounding box, all at once over their points laid end to end.
         lo, hi = np.empty((n, 2)), np.empty((n, 2))
@@ -574,9 +577,54 @@ class GeometricDetector:
         for parts in members_of.values():  # in the order of their first (largest) cluster
             merged = np.concatenate([clusters[k] for k in parts])
             if len(merged) >= self.min_points:
-                alone = len(parts) == 1
+                alone = len(parts) == 1 and not changed[parts[0]]
                 out.append((merged, fits[parts[0]] if alone else None, alone))
         return out
+
+    def _reclaim_insides(
+        self,
+        clusters: list[NDArray[np.intp]],
+        circles: Sequence[_Circle | None],
+        uw: Array,
+        z: Array,
+        h: Array,
+    ) -> NDArray[np.bool_]:
+        """Give each well-seen vessel's wall the points of other clusters inside its circle
+        and below its rim (:meth:`_rim`, less ``closed_top_tolerance``), in place; which
+        clusters changed. Over a cup's rim the camera sees its inner far wall at about the
+        depth of what stands just behind it, and the two clustered together: the cup kept no
+        inside (so it read as closed, a can) and the neighbour a piece of the cup. Nothing
+        else stands inside a wall. Only walls that fix their circle (at most
+        ``bowl_min_radius``, at least ``full_support_points`` wall points, nine in ten
+        within 2.5 sigma: not a clear object's sparse front), and only from clusters that
+        keep ``min_points`` (one lying inside as a whole is joined by the circle test)."""
+        changed = np.zeros(len(clusters), dtype=bool)
+        boxes = [(uw[m].min(axis=0), uw[m].max(axis=0)) for m in clusters]
+        for j, circle in enumerate(circles):
+            if circle is None or circle[1] > self.bowl_min_radius:
+                continue
+            center, radius, res, wall = circle
+            sigma = self._sigma(z[clusters[j]])
+            support = int(wall.sum())
+            if support < self.full_support_points or (
+                np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) < 0.9 * support
+            ):
+                continue
+            hj = h[clusters[j]]
+            rim = self._rim(uw[clusters[j]], hj, center, radius, self._top(hj))
+            for i, (lo, hi) in enumerate(boxes):
+                if i == j or (lo > center + radius).any() or (hi < center - radius).any():
+                    continue
+                members = clusters[i]
+                inside = (_radial(uw[members], center) < radius) & (
+                    h[members] < rim - self.closed_top_tolerance
+                )
+                taken = int(inside.sum())
+                if taken and len(members) - taken >= self.min_points:
+                    clusters[j] = np.concatenate([clusters[j], members[inside]])
+                    clusters[i] = members[~inside]
+                    changed[i] = changed[j] = True
+        return changed
 
     def _radius_ok(self, radius: float) -> bool:
         return self.radius_range[0] <= radius <= self.radius_range[1]
