@@ -541,14 +541,11 @@ class GeometricDetector:
         # A circle too small or large is not a container's wall: it contains nothing.
         circles = [fit if fit is not None and self._radius_ok(fit[1]) else None for fit in fits]
         n = len(clusters)
-        changed = self._reclaim_insides(clusters, circles, uw, z, h)
+        lo, hi = _boxes(uw, clusters)
+        changed = self._reclaim_insides(clusters, circles, uw, z, h, lo, hi)
+        if changed.any():
+            lo, hi = _boxes(uw, clusters)
         joins = np.eye(n, dtype=bool)
-        # Every cluster's bounding box, all at once over their points laid end to end.
-        lo, hi = np.empty((n, 2)), np.empty((n, 2))
-        if n:
-            laid = uw[np.concatenate(clusters)]
-            starts = np.cumsum([0] + [len(m) for m in clusters[:-1]])
-            lo, hi = np.minimum.reduceat(laid, starts), np.maximum.reduceat(laid, starts)
         for j, circle in enumerate(circles):
             if circle is None:
                 continue
@@ -588,6 +585,8 @@ class GeometricDetector:
         uw: Array,
         z: Array,
         h: Array,
+        lo: Array,
+        hi: Array,
     ) -> NDArray[np.bool_]:
         """Give each well-seen vessel's wall the points of other clusters inside its circle
         and below its rim (:meth:`_rim`, less ``closed_top_tolerance``), in place; which
@@ -597,24 +596,25 @@ class GeometricDetector:
         else stands inside a wall. Only walls that fix their circle (at most
         ``bowl_min_radius``, at least ``full_support_points`` wall points, nine in ten
         within 2.5 sigma: not a clear object's sparse front), and only from clusters that
-        keep ``min_points`` (one lying inside as a whole is joined by the circle test)."""
+        keep ``min_points`` (one lying inside as a whole is joined by the circle test).
+        ``lo``, ``hi``: the clusters' bounding boxes (:func:`_boxes`)."""
         changed = np.zeros(len(clusters), dtype=bool)
-        boxes = [(uw[m].min(axis=0), uw[m].max(axis=0)) for m in clusters]
         for j, circle in enumerate(circles):
             if circle is None or circle[1] > self.bowl_min_radius:
                 continue
             center, radius, res, wall = circle
-            sigma = self._sigma(z[clusters[j]])
+            # A cluster whose bounding box misses the circle's has no point inside it.
+            near = np.flatnonzero(((lo <= center + radius) & (hi >= center - radius)).all(axis=1))
+            near = near[near != j]
             support = int(wall.sum())
-            if support < self.full_support_points or (
-                np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) < 0.9 * support
-            ):
+            if len(near) == 0 or support < self.full_support_points:
+                continue
+            sigma = self._sigma(z[clusters[j]])
+            if np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) < 0.9 * support:
                 continue
             hj = h[clusters[j]]
             rim = self._rim(uw[clusters[j]], hj, center, radius, self._top(hj))
-            for i, (lo, hi) in enumerate(boxes):
-                if i == j or (lo > center + radius).any() or (hi < center - radius).any():
-                    continue
+            for i in near:
                 members = clusters[i]
                 inside = (_radial(uw[members], center) < radius) & (
                     h[members] < rim - self.closed_top_tolerance
@@ -1632,6 +1632,17 @@ def _on_all(uw: Array, subset: NDArray[np.bool_], fit: _Circle) -> _Circle:
     wall = np.zeros(len(uw), dtype=bool)
     wall[np.flatnonzero(subset)[fit[3]]] = True
     return fit[0], fit[1], _radial(uw, fit[0]) - fit[1], wall
+
+
+def _boxes(uw: Array, clusters: Sequence[NDArray[np.intp]]) -> tuple[Array, Array]:
+    """Every cluster's bounding box (lo, hi), (N, 2) each, all at once over their points laid
+    end to end."""
+    n = len(clusters)
+    if n == 0:
+        return np.empty((0, 2)), np.empty((0, 2))
+    laid = uw[np.concatenate(clusters)]
+    starts = np.cumsum([0] + [len(m) for m in clusters[:-1]])
+    return np.minimum.reduceat(laid, starts), np.maximum.reduceat(laid, starts)
 
 
 def _components(joins: NDArray[np.bool_]) -> NDArray[np.intp]:
