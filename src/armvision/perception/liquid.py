@@ -256,6 +256,22 @@ def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
     return (part.take(k - 1, axis=axis) + part.take(k, axis=axis)) / 2
 
 
+def _percentile(a: Array, q: float) -> float:
+    """``np.percentile(a, q)`` of a non-empty 1-D array without NaN: numpy's linear
+    interpolation between the two order statistics around ``(n - 1) q / 100``, found by one
+    partition, without its overhead (~30 us a call, ~3 here)."""
+    n = len(a)
+    at = (q / 100.0) * (n - 1)
+    lo = int(at)
+    hi = min(lo + 1, n - 1)
+    part = np.partition(a, (lo, hi))
+    below, above = float(part[lo]), float(part[hi])
+    gamma = at - lo
+    diff = above - below
+    # numpy's _lerp: from the nearer end, for monotonicity
+    return above - diff * (1.0 - gamma) if gamma >= 0.5 else below + diff * gamma
+
+
 def _linspace(start: float, stop: float, num: int) -> Array:
     """``np.linspace(start, stop, num)`` of two numbers (``num`` >= 2): its own sums (``arange
     * step + start``, the last set to ``stop``) without its overhead (~4 us a call)."""
@@ -1179,7 +1195,7 @@ class LiquidLevelMeter:
         does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
         reaches at least that high, less a few mm of shoulder still near the radius."""
         h = rays.height.take(np.flatnonzero(rays.at_wall))  # all pass within _RAY_MISS = 0.8 r
-        return float(np.percentile(h, 95.0)) if len(h) >= 20 else 0.0
+        return _percentile(h, 95.0) if len(h) >= 20 else 0.0
 
     def _why_unseen(
         self, frame: RGBDFrame, bf: _Frame3D, body: float, rays: _Rays, passes_below: float | None
