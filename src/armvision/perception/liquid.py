@@ -236,7 +236,7 @@ def _hypot_below(a: Array, b: Array, limit: float) -> NDArray[np.bool_]:
     sq = a * a + b * b
     lim2 = limit * limit
     below = sq < lim2
-    doubt = np.flatnonzero(np.abs(sq - lim2) <= lim2 * _SQ_SLACK)
+    doubt = (np.abs(sq - lim2) <= lim2 * _SQ_SLACK).nonzero()[0]
     if len(doubt):
         below[doubt] = np.hypot(a[doubt], b[doubt]) < limit
     return below
@@ -405,7 +405,7 @@ def _step_split(is_liquid: NDArray[np.bool_]) -> tuple[int, int]:
     np.cumsum(is_liquid, out=liquid[1:])
     cost = np.arange(n + 1) + liquid[-1] - 2 * liquid
     low = cost.min()
-    best = np.flatnonzero(cost == low)
+    best = (cost == low).nonzero()[0]
     return int(best[len(best) // 2]), int(low)
 
 
@@ -425,9 +425,20 @@ def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
     return e1, cross3(up, e1)
 
 
+#: cos and sin of :func:`unit_ring`'s default 24 angles, (24, 1): computed once.
+_RING_ANGLES = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
+_RING_COS, _RING_SIN = np.cos(_RING_ANGLES)[:, None], np.sin(_RING_ANGLES)[:, None]
+
+
 def unit_ring(up: ArrayLike, n: int = 24) -> Array:
     """``n`` points (n, 3) on the unit circle around the axis ``up``."""
-    e1, e2 = plane_basis(up)
+    return _ring(*plane_basis(up), n)
+
+
+def _ring(e1: Array, e2: Array, n: int = 24) -> Array:
+    """:func:`unit_ring` of the plane basis (e1, e2) of its axis."""
+    if n == 24:
+        return _RING_COS * e1 + _RING_SIN * e2
     ang = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
     return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
 
@@ -704,7 +715,7 @@ class LiquidLevelMeter:
         key = up.tobytes()
         if key != self._basis_key:
             e1, e2 = plane_basis(up)
-            ring = unit_ring(up)
+            ring = _ring(e1, e2)
             for a in (e1, e2, ring):
                 a.flags.writeable = False
             self._basis_key, self._basis = key, (e1, e2, ring)
@@ -750,7 +761,7 @@ class LiquidLevelMeter:
 
         p = np.array([0.0, 0.0, radius, top])
         eps = 1e-4
-        idx = np.flatnonzero(mask)
+        idx = mask.nonzero()[0]
         # The box at p and at p +- eps along each free parameter: central differences.
         steps = np.zeros((1 + 2 * len(idx), 4))
         steps[1 + np.arange(len(idx)), idx] = eps
@@ -826,12 +837,12 @@ class LiquidLevelMeter:
         ``empty_from`` (the first depth level), else in the lowest third.
         """
         r = bf.radius
-        start = int(np.searchsorted(s, self.base + 0.005))
-        stop = int(np.searchsorted(s, bf.top - 0.01))
+        start = int(s.searchsorted(self.base + 0.005))
+        stop = int(s.searchsorted(bf.top - 0.01))
         if stop - start < 10:
             return self.body_fraction * bf.top, False
         lowest = slice(start, start + (stop - start) // 3)
-        first = max(int(np.searchsorted(s, floor)), start)
+        first = max(int(s.searchsorted(floor)), start)
         walls = (r, r)
         if search_wall:
             # Where the wall's silhouette shows alone: the empty body above the first depth
@@ -851,7 +862,7 @@ class LiquidLevelMeter:
 
         def within(lo: float, hi: float) -> Array:
             """The grid's values strictly between ``lo`` and ``hi`` (it is increasing)."""
-            return grid[np.searchsorted(grid, lo, "right") : np.searchsorted(grid, hi, "left")]
+            return grid[grid.searchsorted(lo, "right") : grid.searchsorted(hi, "left")]
 
         runs, bands = [], []
         for side, wall in zip((-1.0, 1.0), walls):
@@ -881,7 +892,7 @@ class LiquidLevelMeter:
             g_band, g_out = (edges[:, cuts[i] : cuts[i + 1] - 1] for i in (2 * side, 2 * side + 1))
             band_t, lo, hi = bands[side]
             where = 0.5 * (band_t[1:] + band_t[:-1])
-            best = np.argmax(g_band, axis=1)
+            best = g_band.argmax(axis=1)
             inside = (where[best] > lo) & (where[best] < hi)
             background = _median(g_out, axis=1)
             strength = np.where(inside, g_band.max(axis=1) - background, 0.0)
@@ -901,7 +912,7 @@ class LiquidLevelMeter:
             return float(s[min(first, len(s) - 1)]), True
         blank = (faint < 0.5 * self.edge_threshold).astype(float)
         run = np.convolve(blank, np.ones(w) / w, mode="valid")
-        gaps = np.flatnonzero(run >= 2.0 / 3.0)
+        gaps = (run >= 2.0 / 3.0).nonzero()[0]
         if len(gaps):
             stop = first + int(gaps[0]) + w // 2
         if stop - first < 4:
@@ -1105,10 +1116,10 @@ class LiquidLevelMeter:
         # before the per-ray work (the same rays, in the same order, as over the whole box).
         # np.hypot is slow (~12 ns a value): a superset by squares first, then it on those.
         reach = _RAY_MISS * bf.radius
-        maybe = np.flatnonzero(off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK))
+        maybe = (off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK)).nonzero()[0]
         # (Gathers by ndarray.take: several times faster than fancy or boolean indexing.)
         miss = np.hypot(off_a.take(maybe), off_l.take(maybe)) / bf.radius
-        keep = np.flatnonzero(miss < _RAY_MISS)
+        keep = (miss < _RAY_MISS).nonzero()[0]
         near, miss = maybe.take(keep), miss.take(keep)
         da, dl, du = d.take(near, axis=1)
         qa, half_b, z_near = qa.take(near), half_b.take(near), z_near.take(near)
@@ -1180,7 +1191,7 @@ class LiquidLevelMeter:
         share = np.count_nonzero(edged, axis=0) / len(s)  # (side, column)
         out: list[float | None] = []
         for side_share in share:
-            columns = np.flatnonzero(side_share >= 0.4)
+            columns = (side_share >= 0.4).nonzero()[0]
             wall = 0.5 * (grid[columns[-1]] + grid[columns[-1] + 1]) if len(columns) else None
             out.append(None if wall is None else float(wall))
         left, right = out
@@ -1194,7 +1205,7 @@ class LiquidLevelMeter:
         height of the points within ``wall_band`` of the outer cylinder's front (a clear wall
         does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
         reaches at least that high, less a few mm of shoulder still near the radius."""
-        h = rays.height.take(np.flatnonzero(rays.at_wall))  # all pass within _RAY_MISS = 0.8 r
+        h = rays.height.take(rays.at_wall.nonzero()[0])  # all pass within _RAY_MISS = 0.8 r
         return _percentile(h, 95.0) if len(h) >= 20 else 0.0
 
     def _why_unseen(
@@ -1291,12 +1302,12 @@ class LiquidLevelMeter:
         n_rows = max(math.ceil((body - self.base) / self.step_m), 1)
         # A point on the bottle above the body is the wall of a shoulder or a neck, no
         # evidence of liquid below it.
-        keep = np.flatnonzero(use & (~rays.on_bottle | (rays.height < body + 0.002)))
+        keep = (use & (~rays.on_bottle | (rays.height < body + 0.002))).nonzero()[0]
         at = (rays.s_low.take(keep) - self.base) / self.step_m
         row = np.minimum(np.maximum(at.astype(int), 0), n_rows - 1)  # np.clip, faster
         n_all = np.bincount(row, minlength=n_rows)
         n_on = np.bincount(row, weights=rays.on_bottle.take(keep), minlength=n_rows)
-        known = np.flatnonzero(n_all >= 2)
+        known = (n_all >= 2).nonzero()[0]
         if len(known) < 4:
             return None
         is_liquid = n_on[known] >= self.liquid_share * n_all[known]
