@@ -266,6 +266,9 @@ def project_xyz(intr: Intrinsics, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> t
     columns; directly, dense grids of points (the liquid meter's rectified strips) need no
     (N, 3) array."""
     z = np.asarray(z, dtype=float)
+    if (z > 0.0).all():  # the common case: no division to guard, nothing to blank
+        xd, yd = distort(intr, np.asarray(x, dtype=float) / z, np.asarray(y, dtype=float) / z)
+        return xd * intr.fx + intr.ppx, yd * intr.fy + intr.ppy
     with np.errstate(divide="ignore", invalid="ignore"):
         xd, yd = distort(intr, np.asarray(x, dtype=float) / z, np.asarray(y, dtype=float) / z)
         u = xd * intr.fx + intr.ppx

@@ -347,3 +347,20 @@ def fit_circles_geometric(
             terms, ux, uy, dist, res, tmp = live[:9], *live[9:]
         active = still
     return np.column_stack([cx, cy]), r
+
+
+def percentile(a: Array, q: float) -> float:
+    """``np.percentile(a, q)`` of a non-empty 1-D array without NaN, the same number: numpy's
+    linear interpolation between the two order statistics around ``(n - 1) q / 100``, found
+    by one partition, without its overhead (~30 us a call against ~3; the detector and the
+    liquid meter take a few hundred a frame on arrays of a few hundred points)."""
+    n = len(a)
+    at = (q / 100.0) * (n - 1)
+    lo = int(at)
+    hi = min(lo + 1, n - 1)
+    part = np.partition(a, (lo, hi))
+    below, above = float(part[lo]), float(part[hi])
+    gamma = at - lo
+    diff = above - below
+    # numpy's _lerp: from the nearer end, for monotonicity
+    return above - diff * (1.0 - gamma) if gamma >= 0.5 else below + diff * gamma

@@ -48,6 +48,7 @@ from armvision.perception.fitting import (
     fit_circle_kasa,
     fit_circles_geometric,
     fit_plane,
+    percentile,
     unit_depth_rays,
 )
 from armvision.perception.liquid import bottle_outline
@@ -632,7 +633,7 @@ class GeometricDetector:
     @staticmethod
     def _sigma(z: Array) -> float:
         """Intel's depth noise at the median depth of ``z``, at least a millimetre."""
-        return max(float(depth_rms_error(_percentile(z, 50.0))), 0.001)
+        return max(float(depth_rms_error(percentile(z, 50.0))), 0.001)
 
     def _fit_cluster(
         self,
@@ -1210,7 +1211,7 @@ class GeometricDetector:
         and so is one of a cluster that does not reach down (its points' 5th height
         percentile above ``hidden_low_fraction`` of its ``top``): an upper part, a bottle's
         neck over a nearer object, whose narrow circle is about its axis."""
-        if radius >= self.bottle_min_radius or _percentile(h, 5.0) >= (
+        if radius >= self.bottle_min_radius or percentile(h, 5.0) >= (
             self.hidden_low_fraction * top
         ):
             return center, radius
@@ -1372,7 +1373,7 @@ class GeometricDetector:
         neck = False
         upper = h > 0.75 * top
         if upper.sum() >= 5:
-            neck = _percentile(r[upper], 90.0) < self.neck_ratio * radius
+            neck = percentile(r[upper], 90.0) < self.neck_ratio * radius
         gap, capped = self._gap(r, h, radius)
         if rim is None:
             rim = self._rim(uw, h, center, radius, top)
@@ -1390,12 +1391,12 @@ class GeometricDetector:
             slices = np.minimum((h / 0.02).astype(np.intp), int(top / 0.02))
             below = h <= top - self.top_band
             per_slice = [
-                _percentile(r_all[below & (slices == k)], 75.0)
+                percentile(r_all[below & (slices == k)], 75.0)
                 for k in np.flatnonzero(np.bincount(slices[below]) >= 8)
             ]
             if per_slice:
                 r_body = max(r_body, float(np.median(per_slice)))
-            if _percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
+            if percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
                 return "other"
         if top >= self.bottle_min_height or neck or capped:
             return "bottle"
@@ -1536,7 +1537,7 @@ class GeometricDetector:
         and at least 60 % of 6 samples on its axis between a tenth of its top and its lowest
         points in the image with depth at least ``hidden_margin`` nearer than the axis (a body
         seen would be at most its radius nearer; missing depth does not count)."""
-        low = _percentile(h, 5.0)
+        low = percentile(h, 5.0)
         if low < self.hidden_low_fraction * top:
             return False
         heights = np.linspace(0.1 * top, 0.9 * low, 6)
@@ -1558,7 +1559,7 @@ class GeometricDetector:
         near = (uw - center) @ to_cam > 0.5 * radius
         if int(near.sum()) < 10:
             return top
-        return min(top, _percentile(h[near], 99.0))
+        return min(top, percentile(h[near], 99.0))
 
     def _shows_inside(self, uw: Array, h: Array, center: Array, radius: float, rim: float) -> bool:
         """Whether the cluster shows the inside of an open vessel: at least
@@ -1589,7 +1590,7 @@ class GeometricDetector:
         if float(steps[k]) < self.bottle_gap:
             return False, False
         above = r[order[k + 1 :]]
-        return True, _percentile(above, 90.0) < self.gap_top_ratio * radius
+        return True, percentile(above, 90.0) < self.gap_top_ratio * radius
 
     def _closed_top(self, r: Array, h: Array, radius: float, top: float) -> bool:
         """Whether the points inside the rim (r < ``closed_top_inner`` x the radius, away
@@ -1705,17 +1706,6 @@ def _moments_line_ss(m: Array) -> Array:
     n, sx, sy, sxx, sxy, syy = m.T
     cxx, cxy, cyy = sxx - sx * sx / n, sxy - sx * sy / n, syy - sy * sy / n
     return np.maximum(0.5 * (cxx + cyy) - np.hypot(0.5 * (cxx - cyy), cxy), 0.0)
-
-
-def _percentile(a: Array, q: float) -> float:
-    """``np.percentile(a, q)`` (linear interpolation) of a non-empty 1-D array, by a
-    partial sort of the two order statistics it needs: a fraction of numpy's call time on
-    the few hundred points of a cluster."""
-    pos = q / 100.0 * (len(a) - 1)
-    lo = int(pos)
-    hi = min(lo + 1, len(a) - 1)
-    part = np.partition(a, (lo, hi))
-    return float(part[lo] + (pos - lo) * (part[hi] - part[lo]))
 
 
 def _line_ss(points: Array) -> float:

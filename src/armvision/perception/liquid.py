@@ -89,12 +89,13 @@ from armvision.camera.frames import (
     Intrinsics,
     RGBDFrame,
     deproject,
+    project,
     project_xyz,
 )
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3
 from armvision.perception.detection import BOTTLE_BODY_FRACTION, Detection
-from armvision.perception.fitting import fit_plane
+from armvision.perception.fitting import fit_plane, percentile
 
 Array = NDArray[np.float64]
 Box = tuple[float, float, float, float]
@@ -256,44 +257,12 @@ def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
     return (part.take(k - 1, axis=axis) + part.take(k, axis=axis)) / 2
 
 
-def _percentile(a: Array, q: float) -> float:
-    """``np.percentile(a, q)`` of a non-empty 1-D array without NaN: numpy's linear
-    interpolation between the two order statistics around ``(n - 1) q / 100``, found by one
-    partition, without its overhead (~30 us a call, ~3 here)."""
-    n = len(a)
-    at = (q / 100.0) * (n - 1)
-    lo = int(at)
-    hi = min(lo + 1, n - 1)
-    part = np.partition(a, (lo, hi))
-    below, above = float(part[lo]), float(part[hi])
-    gamma = at - lo
-    diff = above - below
-    # numpy's _lerp: from the nearer end, for monotonicity
-    return above - diff * (1.0 - gamma) if gamma >= 0.5 else below + diff * gamma
-
-
 def _linspace(start: float, stop: float, num: int) -> Array:
     """``np.linspace(start, stop, num)`` of two numbers (``num`` >= 2): its own sums (``arange
     * step + start``, the last set to ``stop``) without its overhead (~4 us a call)."""
     y = np.arange(num, dtype=float) * ((stop - start) / (num - 1)) + start
     y[-1] = stop
     return y
-
-
-def _project_xyz(intr: Intrinsics, x: Array, y: Array, z: Array) -> tuple[Array, Array]:
-    """:func:`~armvision.camera.frames.project_xyz` of float arrays: for an undistorted camera
-    with every point in front, its formula inline, without its error-state context and calls
-    (~5 us a call, ~10 calls a bottle on arrays of a few hundred points); else it."""
-    if intr.model == "none" and (z > 0.0).all():
-        return x / z * intr.fx + intr.ppx, y / z * intr.fy + intr.ppy
-    return project_xyz(intr, x, y, z)
-
-
-def _project(intr: Intrinsics, points: Array) -> Array:
-    """:func:`~armvision.camera.frames.project` of points (N, 3), by :func:`_project_xyz`."""
-    uv = np.empty((len(points), 2))
-    uv[:, 0], uv[:, 1] = _project_xyz(intr, points[:, 0], points[:, 1], points[:, 2])
-    return uv
 
 
 def _clamp(x: float, lo: float, hi: float) -> float:
@@ -756,7 +725,7 @@ class LiquidLevelMeter:
             a, b, r, h = params.T[:, :, None, None]
             centre = foot3 + a * e1_3 + b * e2_3
             x, y, z = centre + (frac * h) * up3 + (scale * r) * ring3
-            uv = np.stack(_project_xyz(intr, x, y, z), axis=1).reshape(len(params), 2, -1)
+            uv = np.stack(project_xyz(intr, x, y, z), axis=1).reshape(len(params), 2, -1)
             return np.concatenate([uv.min(2), uv.max(2) + 1], axis=1)
 
         p = np.array([0.0, 0.0, radius, top])
@@ -795,7 +764,7 @@ class LiquidLevelMeter:
         ss = s[:, None] if shift is None else s[:, None] + shift
         foot, up, lateral = (a[:, None, None] for a in (bf.foot, bf.up, bf.lateral))
         x, y, z = foot + ss * up + t * lateral  # (xyz, row, column)
-        u, v = _project_xyz(frame.intrinsics, x, y, z)
+        u, v = project_xyz(frame.intrinsics, x, y, z)
         map_x = u.astype(np.float32)
         map_y = v.astype(np.float32)
         return cv2.remap(
@@ -1031,7 +1000,7 @@ class LiquidLevelMeter:
             confidence *= 0.7
         level = _clamp(level, self.base, body)
         fill = _clamp((level - self.base) / (body - self.base), 0.0, 1.0)
-        level_px = _project(frame.intrinsics, bf.points(np.array([level, body]), 0.0))
+        level_px = project(frame.intrinsics, bf.points(np.array([level, body]), 0.0))
         below = inner[(s_body < level - 0.003) & (s_body > self.base)]
         colour = _median_rgb(below) if fill > 0.02 and below.size else None
         debug = self._debug(frame, ibox, bf, level, body, fill)
@@ -1206,7 +1175,7 @@ class LiquidLevelMeter:
         does on some pixels on a D435, MuJoCo's plain render on none: then 0). The body
         reaches at least that high, less a few mm of shoulder still near the radius."""
         h = rays.height.take(rays.at_wall.nonzero()[0])  # all pass within _RAY_MISS = 0.8 r
-        return _percentile(h, 95.0) if len(h) >= 20 else 0.0
+        return percentile(h, 95.0) if len(h) >= 20 else 0.0
 
     def _why_unseen(
         self, frame: RGBDFrame, bf: _Frame3D, body: float, rays: _Rays, passes_below: float | None
@@ -1229,7 +1198,7 @@ class LiquidLevelMeter:
         intr = frame.intrinsics
         ss = _linspace(self.base, body, 12)
         tt = _linspace(-bf.radius, bf.radius, 7)
-        uv = _project(intr, bf.points(ss[:, None], tt[None, :]).reshape(-1, 3))
+        uv = project(intr, bf.points(ss[:, None], tt[None, :]).reshape(-1, 3))
         in_image = (
             (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
         )
@@ -1342,7 +1311,7 @@ class LiquidLevelMeter:
             bf.radius * _DEBUG_COS,
             bf.radius * _DEBUG_SIN,
         )
-        uv = _project(frame.intrinsics, rings.reshape(-1, 3)) - [x0, y0]
+        uv = project(frame.intrinsics, rings.reshape(-1, 3)) - [x0, y0]
         for ring_px, colour in zip(
             np.round(uv).astype(np.int32).reshape(len(heights), -1, 2), colours
         ):

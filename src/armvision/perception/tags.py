@@ -39,7 +39,6 @@ from armvision.camera.frames import (
     Intrinsics,
     RGBDFrame,
     deproject,
-    distort,
     project,
     undistort,
 )
@@ -143,19 +142,6 @@ def _normalised(intr: Intrinsics, uv: Array) -> Array:
         intr, (uv[:, 0] - intr.ppx) / intr.fx, (uv[:, 1] - intr.ppy) / intr.fy
     )
     return xy
-
-
-def _project(intr: Intrinsics, points: Array) -> Array:
-    """:func:`project` of points (N, 3), the same pixels, without its per-call overheads when
-    all the points are in front of the camera (as a tag's corners are)."""
-    z = points[:, 2]
-    if not (z > 0.0).all():
-        return project(intr, points)
-    x, y = distort(intr, points[:, 0] / z, points[:, 1] / z)
-    uv = np.empty((len(points), 2))
-    uv[:, 0] = x * intr.fx + intr.ppx
-    uv[:, 1] = y * intr.fy + intr.ppy
-    return uv
 
 
 def _ippe_solutions(object_points: Array, xy: Array) -> list[tuple[Array, float]]:
@@ -374,7 +360,7 @@ class TagDetector:
         posed[0] = self._object_points @ R_pnp.T + t_pnp
         posed[1:4] = self._object_points @ (_NUDGE_ROTATIONS @ R_pnp).transpose(0, 2, 1) + t_pnp
         posed[4:] = posed[0] + _NUDGE_SHIFTS[:, None]
-        uv = _project(intr, posed.reshape(-1, 3)).reshape(7, -1)
+        uv = project(intr, posed.reshape(-1, 3)).reshape(7, -1)
         J = (uv[1:] - uv[0]).T / _NUDGE
         sigma_px = self.corner_sigma_px
         if sigma_px is None:
@@ -409,5 +395,5 @@ class TagDetector:
 
     def _reprojection_rms(self, T_cam_tag: Array, corners: Array, intr: Intrinsics) -> float:
         p_cam = self._object_points @ T_cam_tag[:3, :3].T + T_cam_tag[:3, 3]
-        error = _project(intr, p_cam) - corners
+        error = project(intr, p_cam) - corners
         return math.sqrt(float((error * error).sum(axis=1).sum()) / len(error))
