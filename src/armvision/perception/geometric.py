@@ -903,14 +903,13 @@ class GeometricDetector:
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
         its top from ``fragment_min_height`` to below ``bottle_min_height``, its bearings
-        spanning no more
-        than ``fragment_max_span`` x the radius at its range (wider: a surface, or something
-        lying), is taken for the front of a container of radius
+        spanning no more than ``fragment_max_span`` x the radius at its range (wider: a
+        surface, or something lying), is taken for the front of a container of radius
         ``fragment_radius`` (scattered patches do not fix a radius), its centre behind them
-        (:func:`_behind_front`), its height their top. A lower group (clear plastic lying
-        on its side, on ClearGrasp's frames, or the liquid in a clear cup) stands that high
-        only when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as
-        that wall. It replaces the group's pieces when it
+        (:func:`_behind_front`), its height their top. A lower group (clear plastic lying on
+        its side, on ClearGrasp's frames, or the liquid in a clear cup) stands that high only
+        when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as that
+        wall. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
         over at least ``clear_share`` of its front (nearer objects' boxes left out): a clear
         cup. Its centre is good to a centimetre or two: enough to count it and to keep a
