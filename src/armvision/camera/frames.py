@@ -280,7 +280,7 @@ def project_xyz(intr: Intrinsics, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> t
     return u, v
 
 
-def _normalised_rays(intr: Intrinsics, uv: Array) -> tuple[Array, Array]:
+def normalised_rays(intr: Intrinsics, uv: Array) -> tuple[Array, Array]:
     """Undistorted (x, y) = (X/Z, Y/Z) of pixels ``uv`` (N, 2)."""
     return undistort(intr, (uv[:, 0] - intr.ppx) / intr.fx, (uv[:, 1] - intr.ppy) / intr.fy)
 
@@ -295,7 +295,7 @@ def deproject(intr: Intrinsics, uv: ArrayLike, depth: ArrayLike) -> Array:
     _check_model(intr)
     pixels = np.atleast_2d(np.asarray(uv, dtype=float))
     z = np.broadcast_to(np.asarray(depth, dtype=float), (pixels.shape[0],))
-    x, y = _normalised_rays(intr, pixels)
+    x, y = normalised_rays(intr, pixels)
     return np.column_stack([x * z, y * z, z])
 
 
@@ -303,7 +303,7 @@ def deproject(intr: Intrinsics, uv: ArrayLike, depth: ArrayLike) -> Array:
 def _image_rays(intr: Intrinsics, height: int, width: int) -> tuple[Array, Array]:
     """Undistorted (x, y) of every pixel of an image, row by row; cached, read-only."""
     v, u = np.mgrid[0:height, 0:width]
-    x, y = _normalised_rays(intr, np.column_stack([u.ravel(), v.ravel()]).astype(float))
+    x, y = normalised_rays(intr, np.column_stack([u.ravel(), v.ravel()]).astype(float))
     x.flags.writeable = False
     y.flags.writeable = False
     return x, y

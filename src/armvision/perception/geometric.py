@@ -1013,12 +1013,11 @@ class GeometricDetector:
         to_cam = -center / max(math.hypot(*center), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
         beside = center + np.outer([-1.5 * radius, 1.5 * radius], lateral)
+        beside_feet = (beside[:, :1] * e1 + beside[:, 1:] * e2 - offset * normal)[:, None, :]
         raised = top
         for low in np.arange(top, self.bottle_min_height - step, step):
             heights = low + step * np.array([0.2, 0.5, 0.8])
-            p_cam = (beside[:, :1] * e1 + beside[:, 1:] * e2 - offset * normal)[
-                :, None, :
-            ] + heights[None, :, None] * normal
+            p_cam = beside_feet + heights[None, :, None] * normal
             uv, ok = _in_image(frame.intrinsics, p_cam.reshape(-1, 3))
             seen = np.zeros(len(ok), dtype=bool)
             seen[ok] = _depth_at(frame, uv[ok]) > 0.0

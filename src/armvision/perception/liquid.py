@@ -913,25 +913,27 @@ class LiquidLevelMeter:
         # when it reaches the top: then no ray passed the bottle anywhere, the mark of an
         # opaque wall (or a view the depth cannot tell), which says nothing about the body.
         first = self._depth_level(rays, bf.top - 0.01)
-        if (first is None or first[0] >= bf.top - self.cap_m) and (
-            bf.misfit_px <= self.max_misfit * (x1 - x0)
-        ):
+        first_level = None if first is None else first[0]
+        # Where lines of sight first pass the bottle, if below its top (not just its cap).
+        empty_from = (
+            first_level if first_level is not None and first_level < bf.top - self.cap_m else None
+        )
+        if empty_from is None and bf.misfit_px <= self.max_misfit * (x1 - x0):
             # No line of sight passes the bottle below its top. If the wall also returns
             # depth over the body (taken at the box fit's shoulder), it is opaque wherever
             # the shoulder is: the search for it, a refit and the full look are not needed.
             prior = self.body_fraction * bf.top
-            unknown = self._why_unseen(frame, bf, prior, rays, None if first is None else first[0])
+            unknown = self._why_unseen(frame, bf, prior, rays, first_level)
             if unknown is not None and unknown.startswith(OPAQUE):
                 debug = self._debug(frame, ibox, bf, None, prior, None)
                 return LiquidLevel(
                     None, None, 0.0, None, "profile", debug, body_height_m=prior, unknown=unknown
                 )
         floor = self.min_body_fraction * bf.top
-        if first is not None and first[0] < bf.top - self.cap_m:
-            floor = max(floor, first[0] - 0.003, self._wall_top(rays, bf) - 0.005)
+        if empty_from is not None:
+            floor = max(floor, empty_from - 0.003, self._wall_top(rays, bf) - 0.005)
         s = np.arange(0.0, bf.top, self.step_m)
         search = geometry.radius is not None  # a detector's radius: its box may be narrow
-        empty_from = first[0] if first is not None and first[0] < bf.top - self.cap_m else None
         body, shoulder_found = self._body_top(frame, bf, s, floor, search, empty_from)
         fraction = body / bf.top
         if shoulder_found and abs(fraction - self.body_fraction) > 0.02:
@@ -957,7 +959,7 @@ class LiquidLevelMeter:
                 f" {bf.misfit_px:.0f} px): is the table around its foot in view?",
             )  # fmt: skip
         rays = self._rays(frame, ibox, bf, r_liq)
-        unknown = self._why_unseen(frame, bf, body, rays, None if first is None else first[0])
+        unknown = self._why_unseen(frame, bf, body, rays, first_level)
         if unknown is not None:
             debug = self._debug(frame, ibox, bf, None, body, None)
             return LiquidLevel(

@@ -39,8 +39,8 @@ from armvision.camera.frames import (
     Intrinsics,
     RGBDFrame,
     deproject,
+    normalised_rays,
     project,
-    undistort,
 )
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3, make_T, rotation_between
@@ -138,9 +138,7 @@ def _normalised(intr: Intrinsics, uv: Array) -> Array:
     """Undistorted normalised image coordinates (x/z, y/z) of pixels (N, 2), any librealsense
     model: :func:`deproject`'s at depth 1, without its checks and (N, 3) result."""
     xy = np.empty((len(uv), 2))
-    xy[:, 0], xy[:, 1] = undistort(
-        intr, (uv[:, 0] - intr.ppx) / intr.fx, (uv[:, 1] - intr.ppy) / intr.fy
-    )
+    xy[:, 0], xy[:, 1] = normalised_rays(intr, uv)
     return xy
 
 
