@@ -60,6 +60,15 @@ Array = NDArray[np.float64]
 _Circle = tuple[Array, float, Array, NDArray[np.bool_]]
 
 
+class _Standing(NamedTuple):
+    """An upright cylinder on the table: its axis's (u, w) in the table plane, its radius and
+    height (m)."""
+
+    center: Array
+    radius: float
+    height: float
+
+
 class _Cluster(NamedTuple):
     """One cluster's points: table-plane coordinates (N, 2), heights and depths (N,); its
     wall circle and whether that was fitted already (else it is still to be fitted)."""
@@ -154,7 +163,8 @@ class GeometricDetector:
     nothing standing behind it in depth) by more than ``bottle_gap``, it is a bottle whose
     height is that body top / ``bottle_body_fraction`` (a shape prior: the simulated bottles'
     body is 72 % of their height). (7) Nearest first, an object whose front surface returns
-    no depth over at least ``clear_share`` of it (boxes of nearer clear objects left out) and
+    no depth over at least ``clear_share`` of it (samples seen through a nearer clear object,
+    within 1 cm of its fitted cylinder, left out) and
     ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup; not a
     cluster with no round wall whose sides (below 0.75 x its top) lie within
     ``flat_face_rms`` of one line over at least 1.5 x ``clear_min_radius`` of width: one
@@ -187,8 +197,12 @@ class GeometricDetector:
     with its far top in view it shows no inside (fewer than ``closed_top_min_points``, or a
     fifth, of the points on its far half below the rim: a can's lid, or a box whose top
     returned no depth), and from lower when it shows no inside and the full-resolution
-    depth over its top is a lid (:meth:`_lid_seen`: the strided cloud loses a lid seen at
-    a low angle with the edges).
+    depth over its top (:meth:`_top_disc`: the strided cloud loses a top seen at a low
+    angle with the edges) is a lid, or meets fewer than ``opening_min_points`` rays passing
+    over the rim into an opening while more of it is hidden by something nearer (or out of
+    the image) than returns no depth (a top blanked by clear plastic, its own or in front,
+    stays a cup). On cluttered seeds 0-399 the objects whose top was hidden by something
+    nearer were five cans and a fruit, and one tumbler.
 
     A bottle's centre and radius are its body's (:meth:`_bottle_body`): the wall circle is
     fitted again below ``body_fit_fraction`` of its height when the whole cluster's circle is
@@ -243,6 +257,7 @@ class GeometricDetector:
         closed_top_tolerance: float = 0.008,
         closed_top_fraction: float = 0.6,
         closed_top_min_points: int = 8,
+        opening_min_points: int = 3,
         wide_top_ratio: float = 0.9,
         top_band: float = 0.015,
         bowl_min_radius: float = 0.042,
@@ -335,6 +350,7 @@ class GeometricDetector:
         self.closed_top_tolerance = float(closed_top_tolerance)
         self.closed_top_fraction = float(closed_top_fraction)
         self.closed_top_min_points = int(closed_top_min_points)
+        self.opening_min_points = int(opening_min_points)
         self.wide_top_ratio = float(wide_top_ratio)
         self.top_band = float(top_band)
         self.bowl_min_radius = float(bowl_min_radius)
@@ -761,8 +777,18 @@ class GeometricDetector:
             far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
             if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
                 label = "other"  # its top in view from above, yet no inside: closed
-            elif self._lid_seen(frame, center, radius, rim, normal, offset, e1, e2):
-                label = "other"  # a lid where a cup's opening would be
+            else:
+                on, beyond, nearer, missing = self._top_disc(
+                    frame, center, radius, rim, normal, offset, e1, e2
+                )
+                judged = on + beyond
+                if judged >= self.closed_top_min_points and on >= self.closed_top_fraction * judged:
+                    label = "other"  # a lid where a cup's opening would be
+                elif beyond < self.opening_min_points and missing <= nearer:
+                    # Its top hidden by something nearer (or out of the image): no opening
+                    # seen, and none to be seen. A top returning no depth is left a cup: clear
+                    # plastic, its own or in front, blanks it (judged by _clear_containers).
+                    label = "other"
         return label, top, circle, False
 
     def _detection(
@@ -830,32 +856,35 @@ class GeometricDetector:
     ) -> tuple[list[Detection], list[float]]:
         """Detections not labelled bottle that the depth camera mostly cannot see (a missing
         share of at least ``clear_share`` over their front surface, see
-        :meth:`_see_through`, nearest first, leaving out the boxes of nearer clear objects,
-        which blank what is behind them) and at least ``clear_min_radius`` in radius (not a
+        :meth:`_see_through`, nearest first, leaving out the samples whose line of sight
+        passes through a nearer clear object's cylinder (1 cm wider: a clear fit may be
+        narrow), which blanks what is behind it; not its image box, which hides a cup behind a
+        clear bottle) and at least ``clear_min_radius`` in radius (not a
         fragment of a clear object's sparse depth): clear plastic or
         glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl.
         One called other for its flat top may be the liquid in a clear cup, the clear wall
-        above returning no depth (:meth:`_clear_above`, the boxes of all clear objects left
-        out: above it the rays meet what stands behind, an opaque object returns depth): a
+        above returning no depth (:meth:`_clear_above`, lines of sight through any clear
+        object, nearer or behind, left out: above it the rays meet what stands behind, an
+        opaque object returns depth): a
         cup. Returns the detections and each one's missing share."""
         out = list(detections)
         shares = [0.0] * len(out)
         if self.clear_share >= 1.0:
             return out, shares
-        clear_boxes: list[tuple[float, float, float, float]] = []
+        clear_ones: list[_Standing] = []
         feet = [d.center_cam - 0.5 * d.height * normal for d in detections]
         centers = [np.array([foot @ e1, foot @ e2]) for foot in feet]
         solid: list[int] = []
         for i in np.argsort([d.center_cam[2] for d in detections]):  # nearest first
             det = out[i]
             share = self._see_through(
-                frame, centers[i], det.radius, det.height, normal, offset, e1, e2, clear_boxes
+                frame, centers[i], det.radius, det.height, normal, offset, e1, e2, clear_ones
             )
             shares[i] = share
             if share < self.clear_share:
                 solid.append(i)
                 continue
-            clear_boxes.append(det.box)
+            clear_ones.append(_Standing(centers[i], det.radius, det.height))
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
             if clear and not planar[i]:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
@@ -866,11 +895,12 @@ class GeometricDetector:
         for i in solid:
             det = out[i]
             # Above it, the rays meet what stands behind: missing depth there may be a clear
-            # object's, nearer or behind, whose box is left out; an opaque one returns depth.
+            # object's, nearer or behind, through which samples are left out; an opaque one
+            # returns depth.
             if (
                 det.label == "other"
                 and not planar[i]
-                and self._clear_above(frame, det, centers[i], normal, offset, e1, e2, clear_boxes)
+                and self._clear_above(frame, det, centers[i], normal, offset, e1, e2, clear_ones)
             ):
                 out[i] = dataclasses.replace(det, label="cup")
         return out, shares
@@ -895,11 +925,14 @@ class GeometricDetector:
         is left of a clear cup is scattered patches, each too small for a cluster, or a
         piece that was fitted as an object of its own with too small a circle.
 
-        The pieces: detections not labelled bottle whose front returns no depth over at least
-        ``clear_share`` of it (:meth:`_clear_containers`) and whose circle is narrower than
-        ``clear_refit_radius``. Their points and the candidate points no cluster took
-        (``members`` are the detections' points in ``uw``, ``idx`` each point's
-        pixel on the strided grid, ``h`` its height), leaving out those within
+        The pieces: detections not labelled bottle whose circle is narrower than
+        ``clear_refit_radius`` and whose front returns no depth over at least ``clear_share``
+        of it (:meth:`_clear_containers`), or would as the front of a ``fragment_radius``
+        container behind its points (a circle fitted through a clear piece runs through the
+        patches that returned depth, so its own front shows them). Their points and the
+        candidate points no cluster took (``members`` are the detections' points in ``uw``,
+        ``idx`` each point's pixel on the strided grid, ``h`` its height), leaving out those
+        within
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
         its top from ``fragment_min_height`` to below ``bottle_min_height``, its bearings
@@ -911,20 +944,40 @@ class GeometricDetector:
         when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as that
         wall. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
-        over at least ``clear_share`` of its front (nearer objects' boxes left out): a clear
-        cup. Its centre is good to a centimetre or two: enough to count it and to keep a
-        grasp clear of it. Taller groups are left as they were: a bottle is something the
-        tasks grasp.
+        over at least ``clear_share`` of its front (lines of sight through nearer clear
+        objects left out): a clear cup. Its centre is good to a centimetre or two: enough to
+        count it and to keep a grasp clear of it. Taller groups are left as they were: a
+        bottle is something the tasks grasp.
         """
+        plane = np.column_stack([e1, e2])
+        feet = [(d.center_cam @ plane, d.radius) for d in detections]
+        clear_ones = [
+            _Standing(feet[k][0], feet[k][1], d.height)
+            for k, d in enumerate(detections)
+            if shares[k] >= self.clear_share
+        ]
         pieces = [
             k
             for k, d in enumerate(detections)
             if d.label != "bottle"
-            and shares[k] >= self.clear_share
             and d.radius < self.clear_refit_radius
+            and (
+                shares[k] >= self.clear_share
+                or self._see_through(
+                    frame,
+                    _behind_front(uw[members[k]], self.fragment_radius),
+                    self.fragment_radius,
+                    d.height,
+                    normal,
+                    offset,
+                    e1,
+                    e2,
+                    clear_ones,
+                    skip_beyond=True,
+                )
+                >= self.clear_share
+            )
         ]
-        plane = np.column_stack([e1, e2])
-        feet = [(d.center_cam @ plane, d.radius) for d in detections]
         taken = np.zeros(len(uw), dtype=bool)
         for m in members:
             taken[m] = True
@@ -960,7 +1013,11 @@ class GeometricDetector:
             if any(math.hypot(*(center - c)) < r + gap for c, r in feet[len(detections) :]):
                 continue
             far = math.hypot(*center)
-            nearer = [detections[k].box for k in solid if math.hypot(*feet[k][0]) < far]
+            nearer = [
+                _Standing(feet[k][0], feet[k][1], detections[k].height)
+                for k in solid
+                if math.hypot(*feet[k][0]) < far and shares[k] >= self.clear_share
+            ]
             if top < self.fragment_min_height:
                 # Low pieces: clear plastic lying, or the liquid in a clear cup, whose wall
                 # above returns no depth where what stands behind it would.
@@ -1041,7 +1098,7 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-        skip_boxes: Sequence[tuple[float, float, float, float]],
+        skip: Sequence[_Standing],
     ) -> bool:
         """Whether a short, cup-wide object called other is the liquid in a clear vessel: its
         flat top is the liquid's surface, read as a lid, and above it the vessel's wall
@@ -1055,7 +1112,7 @@ class GeometricDetector:
             return False
         heights = det.height + np.linspace(0.005, 0.035, 8)
         share = self._see_through(
-            frame, center, det.radius, det.height, normal, offset, e1, e2, skip_boxes, heights
+            frame, center, det.radius, det.height, normal, offset, e1, e2, skip, heights, True
         )
         return share >= self.clear_share
 
@@ -1069,8 +1126,9 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-        skip_boxes: Sequence[tuple[float, float, float, float]] = (),
+        skip: Sequence[_Standing] = (),
         heights: Array | None = None,
+        skip_beyond: bool = False,
     ) -> float:
         """Share of the object's front surface where the depth camera returns nothing:
         sampled over the middle 60 % of its width and 15-85 % of its height (or at
@@ -1079,8 +1137,9 @@ class GeometricDetector:
         object (speckle), about half for clear plastic on a D435 (52 % missing on ClearGrasp's
         real frames, 22-75 % per frame; the rest mostly shows what is behind). Missing depth
         alone, not depth behind the surface: a fitted cylinder wider than a round or tapered
-        object (fruit, a bowl) sees the table behind its edges. 0 with fewer than 12 samples
-        to judge by."""
+        object (fruit, a bowl) sees the table behind its edges. Samples whose line of sight
+        passes through one of ``skip`` (nearer clear objects, which blank what is behind them)
+        are left out. 0 with fewer than 12 samples to judge by."""
         to_cam = -center / max(math.hypot(*center), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
         t = radius * _SEE_ACROSS
@@ -1089,8 +1148,10 @@ class GeometricDetector:
         base = uw[:, :1] * e1 + uw[:, 1:] * e2 - offset * normal
         p_cam = (base[None, :, :] + hs[:, None, None] * normal).reshape(-1, 3)
         uv, ok = _in_image(frame.intrinsics, p_cam)
-        for x0, y0, x1, y1 in skip_boxes:  # behind a nearer object, perhaps a clear one
-            ok &= ~((uv[:, 0] >= x0) & (uv[:, 0] <= x1) & (uv[:, 1] >= y0) & (uv[:, 1] <= y1))
+        if skip:
+            ok &= ~_seen_through(
+                np.tile(uw, (len(hs), 1)), np.repeat(hs, len(uw)), offset, skip, skip_beyond
+            )
         if ok.sum() < 12:
             return 0.0
         seen = _depth_at(frame, uv[ok])
@@ -1483,7 +1544,7 @@ class GeometricDetector:
         hidden = (seen > 0.0) & (seen < p_cam[ok, 2] - margin)
         return int((~hidden).sum()) >= len(ring) // 2
 
-    def _lid_seen(
+    def _top_disc(
         self,
         frame: RGBDFrame,
         center: Array,
@@ -1493,31 +1554,27 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> bool:
-        """Whether the full-resolution depth shows a lid across the top: of 21 samples (a
-        5 x 5 grid's, within the disc) on the disc inside ``closed_top_inner`` x the radius
-        at ``rim`` height, at least ``closed_top_min_points`` return depth within
-        ``closed_top_tolerance`` (or 3 sigma) of that disc or beyond it (nearer: a nearer
-        object; missing: neither is judged), and ``closed_top_fraction`` of those are on
-        it. Looking into an open cup the rays pass the rim and meet the inside, farther.
-        The strided cloud loses a lid seen at a low angle: its depth changes fast across
-        it, so it goes with the edges."""
+    ) -> tuple[int, int, int, int]:
+        """What the full-resolution depth shows across the top: of 21 samples (a 5 x 5
+        grid's, within the disc) on the disc inside ``closed_top_inner`` x the radius at
+        ``rim`` height, how many return depth within ``closed_top_tolerance`` (or 3 sigma) of
+        that disc (a lid) and how many beyond it (over the rim into an opening); nearer (a
+        nearer object) and missing depth are neither. The strided cloud loses a top seen at
+        a low angle: its depth changes fast across it, so it goes with the edges."""
         a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
         grid = np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
         uw = center + grid
         p_cam = uw[:, :1] * e1 + uw[:, 1:] * e2 + (rim - offset) * normal
         uv, ok = _in_image(frame.intrinsics, p_cam)
-        if ok.sum() < self.closed_top_min_points:
-            return False
+        if not ok.any():
+            return 0, 0, 0, 0
         seen = _depth_at(frame, uv[ok])
         expected = p_cam[ok, 2]
         margin = np.maximum(self.closed_top_tolerance, 3.0 * depth_rms_error(expected))
         on = (seen > 0.0) & (np.abs(seen - expected) <= margin)
         beyond = (seen > 0.0) & (seen > expected + margin)
-        judged = int(on.sum() + beyond.sum())
-        return (
-            judged >= self.closed_top_min_points and on.sum() >= self.closed_top_fraction * judged
-        )
+        nearer = (seen > 0.0) & (seen < expected - margin)
+        return int(on.sum()), int(beyond.sum()), int(nearer.sum()), int((seen <= 0.0).sum())
 
     def _body_hidden(
         self,
@@ -1675,6 +1732,39 @@ def _behind_front(points: Array, radius: float) -> Array:
     bearing = 0.5 * float(bearings.min() + bearings.max())
     distance = float(np.median(np.hypot(points[:, 0], points[:, 1]))) + 0.7 * radius
     return distance * np.array([math.cos(bearing), math.sin(bearing)])
+
+
+def _seen_through(
+    uw: Array,
+    h: Array,
+    camera_height: float,
+    cylinders: Sequence[_Standing],
+    beyond: bool = False,
+    margin: float = 0.01,
+) -> NDArray[np.bool_]:
+    """Whether the line of sight from the camera (over the table plane's origin,
+    ``camera_height`` above it) to each point (``uw`` (N, 2) in the table plane, ``h`` (N,)
+    above it) passes through one of ``cylinders`` before reaching the point. Along the sight
+    line the height falls, so it passes through a cylinder when it meets the cylinder's
+    circle and is below the cylinder's top where it leaves it (or at the point)."""
+    hidden = np.zeros(len(uw), dtype=bool)
+    d2 = np.maximum(np.einsum("ij,ij->i", uw, uw), 1e-12)
+    for c, r, top in cylinders:
+        r = r + margin
+        t_mid = (uw @ c) / d2
+        du = uw[:, 0] * t_mid - c[0]
+        dw = uw[:, 1] * t_mid - c[1]
+        miss2 = du * du + dw * dw
+        half = np.sqrt(np.maximum(r * r - miss2, 0.0) / d2)
+        t_in, t_out = t_mid - half, t_mid + half
+        if beyond:  # the sight line carried on past the point, until it meets the table
+            ok = camera_height + t_in * (h - camera_height) > 0.0
+        else:
+            t_out = np.minimum(t_out, 1.0)
+            ok = t_in < 1.0
+        h_out = camera_height + t_out * (h - camera_height)
+        hidden |= (miss2 <= r * r) & ok & (t_out > 0.0) & (h_out <= top)
+    return hidden
 
 
 def _radial(uw: Array, center: Array) -> Array:
