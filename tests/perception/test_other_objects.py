@@ -156,6 +156,26 @@ def test_a_can_whose_top_is_hidden_by_something_nearer_is_not_a_cup() -> None:
         assert abs(found[0].radius - 0.036) < 0.004
 
 
+def test_a_canister_with_a_band_that_returns_no_depth_is_no_bottle() -> None:
+    """A 19 cm canister of 4.2 cm radius with a lid, a band of its wall 3-4 cm high (a shiny
+    label) returning no depth: the height profile has a gap under a wide, closed top, a lid,
+    not a clear bottle's narrow cap over its empty wall, so it is other as it is without the
+    band (it was a bottle). Seen from 30 and 35 degrees, exact depth plus Intel's noise."""
+    rng = np.random.default_rng(7)
+    for pitch, height in ((35.0, 0.45), (30.0, 0.40)):
+        bench = TiltedBench(pitch, height)
+        foot = bench.table_point(320.0, 330.0)
+        exact = bench.vessel(foot, 0.042, 0.19, lid=True)
+        near, _ = bench.cylinder(foot, 0.042)
+        for low, high in ((0.0, 0.0), (0.08, 0.11), (0.06, 0.10)):
+            band = (bench.heights(near) >= low) & (bench.heights(near) <= high) & (exact == near)
+            depth = np.where(band, 0.0, exact)
+            noisy = depth + rng.normal(0.0, 1.0, depth.shape) * depth_rms_error(depth)
+            found = GeometricDetector().detect(bench.frame(np.where(depth > 0, noisy, 0.0)))
+            assert [d.label for d in found] == ["other"], (pitch, low)
+            assert abs(found[0].radius - 0.042) < 0.003
+
+
 def test_liquid_in_a_clear_cup_is_no_can_lid() -> None:
     """The liquid in a clear cup returns depth and its surface reads as a lid; the clear
     wall above it returns none (here: none at all). The same liquid column with nothing

@@ -180,7 +180,8 @@ class GeometricDetector:
     quarter's 90th-percentile distance from the axis below ``neck_ratio`` x the radius), or a
     gap of at least ``bottle_gap`` with no points in the height profile under something narrow
     (below ``gap_top_ratio`` x the radius: a cap, not a clear cup's rim). A tall object with
-    no neck and no gap is other when its top ``top_band`` is as wide as the body (75th
+    no neck and no gap, or a gap under a wide closed top (a lid over a band that returned no
+    depth), is other when its top ``top_band`` is as wide as the body (75th
     percentile of distances from the axis at least ``wide_top_ratio`` x the radius or, if
     larger, x the median over 2 cm slices below of the same percentile: a can stack or
     canister; a partly seen wall fits a circle narrower than its points). A closed
@@ -1437,9 +1438,11 @@ class GeometricDetector:
         if rim is None:
             rim = self._rim(uw, h, center, radius, top)
         closed = self._closed_top(r, h, radius, rim)
-        if top >= self.bottle_min_height and not neck and not gap:
-            # Tall, no neck, no gap and as wide at the top as the body: a can stack or a
-            # canister, not a bottle (a bottle's top band is its cap, 0.45-0.75 x the radius).
+        if top >= self.bottle_min_height and not neck and (not gap or (closed and not capped)):
+            # Tall, no neck, no gap (or one under a wide, closed top: a lid over a band that
+            # returned no depth, not a clear bottle's cap) and as wide at the top as the
+            # body: a can stack or a canister, not a bottle (a bottle's top band is its cap,
+            # 0.45-0.75 x the radius).
             band = h > top - self.top_band
             c, r_body = self._widened(center, radius, h, top)
             r_top = _radial(uw[band], c)
