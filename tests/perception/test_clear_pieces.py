@@ -132,7 +132,7 @@ def test_sight_lines_through_a_cylinder_match_marching_along_them() -> None:
     bigger = _Standing(cyl.center, cyl.radius + 0.001, cyl.height + 0.001)
     smaller = _Standing(cyl.center, cyl.radius - 0.001, cyl.height - 0.001)
     for beyond in (False, True):
-        got = _seen_through(uw, h, 0.5, [cyl], beyond, margin=0.0)
+        got = _seen_through(uw, h, 0.5, [cyl], beyond)
         judged = 0
         for i in range(len(uw)):
             hi = _march(uw[i], h[i], 0.5, bigger, beyond)
@@ -147,15 +147,40 @@ def test_a_point_straight_behind_a_cylinder_is_hidden_one_beside_it_is_not() -> 
     (0, 0.5). A point on the table at (0, 0.7): its sight line is at height 0.5 - 0.5 *
     0.47/0.7 = 0.164 m where it enters the cylinder and 0.5 - 0.5 * 0.53/0.7 = 0.121 m where
     it leaves, above the top: not hidden. At (0, 0.62) it leaves at 0.5 - 0.5 * 0.53/0.62 =
-    0.073 m: hidden. At (0.06, 0.62) it passes 4.8 cm beside the axis: not hidden; with a
-    2 cm margin it is. Carried on past a point at 0.2 m height at (0, 0.4), the sight line
-    meets the cylinder at 0.5 - 0.3 * 0.47/0.4 = 0.147 m and leaves at 0.5 - 0.3 * 0.53/0.4
-    = 0.1025 m, both above its top: not hidden; from 0.15 m high it is."""
+    0.073 m: hidden. At (0.06, 0.62) it passes 4.8 cm beside the axis: not hidden; by a
+    cylinder of 5 cm radius it is. Carried on past a point at 0.2 m height at (0, 0.4), the
+    sight line meets the cylinder at 0.5 - 0.3 * 0.47/0.4 = 0.147 m and leaves at 0.5 - 0.3 *
+    0.53/0.4 = 0.1025 m, both above its top: not hidden; from 0.15 m high it is."""
     cyl = [_Standing(np.array([0.0, 0.5]), 0.03, 0.10)]
+    wider = [_Standing(np.array([0.0, 0.5]), 0.05, 0.10)]
     uw = np.array([[0.0, 0.7], [0.0, 0.62], [0.06, 0.62]])
-    assert _seen_through(uw, np.zeros(3), 0.5, cyl, margin=0.0).tolist() == [False, True, False]
-    assert _seen_through(uw[2:], np.zeros(1), 0.5, cyl, margin=0.02).tolist() == [True]
+    assert _seen_through(uw, np.zeros(3), 0.5, cyl).tolist() == [False, True, False]
+    assert _seen_through(uw[2:], np.zeros(1), 0.5, wider).tolist() == [True]
     before = np.array([[0.0, 0.4], [0.0, 0.4]])
     heights = np.array([0.2, 0.15])
-    assert _seen_through(before, heights, 0.5, cyl, margin=0.0).tolist() == [False, False]
-    assert _seen_through(before, heights, 0.5, cyl, True, margin=0.0).tolist() == [False, True]
+    assert _seen_through(before, heights, 0.5, cyl).tolist() == [False, False]
+    assert _seen_through(before, heights, 0.5, cyl, True).tolist() == [False, True]
+
+
+def test_what_a_nearer_object_blanks_is_not_counted_as_clear() -> None:
+    """An opaque can, 12 cm tall, standing 12 cm behind a clear bottle-sized cylinder of
+    the same radius, 22 cm tall, 1 cm to one side: where the clear one stands, the depth
+    image has no depth (the D435 on clear plastic). Counted as the can's, its whole front
+    reads as clear; the samples whose line of sight passes through the nearer cylinder are
+    left out, too few are left to judge it by, and it is not called clear (0)."""
+    foot_front = BENCH.table_point(330.0, 330.0)
+    foot_can = foot_front + np.array([0.01, 0.0, 0.0]) + 0.12 * np.cross(BENCH.up, [1.0, 0, 0])
+    can = BENCH.vessel(foot_can, 0.035, 0.12, lid=True)
+    near, _ = BENCH.cylinder(foot_front, 0.035)
+    blank = (BENCH.heights(near) >= 0.0) & (BENCH.heights(near) <= 0.22)
+    frame = BENCH.frame(np.where(blank, 0.0, can))
+    det = GeometricDetector()
+    det.detect(frame)
+    normal, offset = det.last_plane
+    e1, e2 = det._plane_axes(normal)
+    uw = lambda p: np.array([p @ e1, p @ e2])  # noqa: E731 - a projection, named once
+    assert np.linalg.norm(uw(foot_can)) > np.linalg.norm(uw(foot_front)) + 0.1  # behind it
+    front = _Standing(uw(foot_front), 0.035, 0.22)
+    args = (frame, uw(foot_can), 0.035, 0.12, normal, offset, e1, e2)
+    assert det._see_through(*args) > 0.3  # the clear one's blank counted as the can's
+    assert det._see_through(*args, [front]) == 0.0

@@ -88,6 +88,7 @@ _RING_COS, _RING_SIN = (
 #: it (x the height), made once: np.linspace costs more per call than the rest of a row.
 _SEE_ACROSS = np.linspace(-0.6, 0.6, 7)
 _SEE_UP = np.linspace(0.15, 0.85, 8)
+_CLEAR_MARGIN = 0.01  # m: a clear object blanks lines of sight this far beside its fitted circle
 
 
 def cylinder_box(
@@ -163,8 +164,8 @@ class GeometricDetector:
     nothing standing behind it in depth) by more than ``bottle_gap``, it is a bottle whose
     height is that body top / ``bottle_body_fraction`` (a shape prior: the simulated bottles'
     body is 72 % of their height). (7) Nearest first, an object whose front surface returns
-    no depth over at least ``clear_share`` of it (samples seen through a nearer clear object,
-    within 1 cm of its fitted cylinder, left out) and
+    no depth over at least ``clear_share`` of it (samples seen through a nearer object's
+    fitted cylinder, a clear one's 1 cm wider, left out) and
     ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup; not a
     cluster with no round wall whose sides (below 0.75 x its top) lie within
     ``flat_face_rms`` of one line over at least 1.5 x ``clear_min_radius`` of width: one
@@ -858,9 +859,11 @@ class GeometricDetector:
         """Detections not labelled bottle that the depth camera mostly cannot see (a missing
         share of at least ``clear_share`` over their front surface, see
         :meth:`_see_through`, nearest first, leaving out the samples whose line of sight
-        passes through a nearer clear object's cylinder (1 cm wider: a clear fit may be
-        narrow), which blanks what is behind it; not its image box, which hides a cup behind a
-        clear bottle) and at least ``clear_min_radius`` in radius (not a
+        passes through a nearer object's cylinder: they do not see this object's surface, and
+        a clear one blanks what is behind it, an opaque one's edge drops depth (a clear
+        object's cylinder is 1 cm wider: a fit to its patches may be narrow); not the nearer
+        objects' image boxes, which hid cups behind and beside bottles) and at least
+        ``clear_min_radius`` in radius (not a
         fragment of a clear object's sparse depth): clear plastic or
         glass, on a table a drinking vessel or a bottle (by height), not a can, box or bowl.
         One called other for its flat top may be the liquid in a clear cup, the clear wall
@@ -873,19 +876,21 @@ class GeometricDetector:
         if self.clear_share >= 1.0:
             return out, shares
         clear_ones: list[_Standing] = []
+        nearer: list[_Standing] = []
         feet = [d.center_cam - 0.5 * d.height * normal for d in detections]
         centers = [np.array([foot @ e1, foot @ e2]) for foot in feet]
         solid: list[int] = []
         for i in np.argsort([d.center_cam[2] for d in detections]):  # nearest first
             det = out[i]
             share = self._see_through(
-                frame, centers[i], det.radius, det.height, normal, offset, e1, e2, clear_ones
+                frame, centers[i], det.radius, det.height, normal, offset, e1, e2, nearer
             )
             shares[i] = share
+            nearer.append(_standing(centers[i], det, share >= self.clear_share))
             if share < self.clear_share:
                 solid.append(i)
                 continue
-            clear_ones.append(_Standing(centers[i], det.radius, det.height))
+            clear_ones.append(nearer[-1])
             clear = det.label != "bottle" and det.radius >= self.clear_min_radius
             if clear and not planar[i]:
                 label: Label = "bottle" if det.height >= self.bottle_min_height else "cup"
@@ -945,7 +950,7 @@ class GeometricDetector:
         when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as that
         wall. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
-        over at least ``clear_share`` of its front (lines of sight through nearer clear
+        over at least ``clear_share`` of its front (lines of sight through nearer
         objects left out): a clear cup. Its centre is good to a centimetre or two: enough to
         count it and to keep a grasp clear of it. Taller groups are left as they were: a
         bottle is something the tasks grasp.
@@ -953,7 +958,7 @@ class GeometricDetector:
         plane = np.column_stack([e1, e2])
         feet = [(d.center_cam @ plane, d.radius) for d in detections]
         clear_ones = [
-            _Standing(feet[k][0], feet[k][1], d.height)
+            _standing(feet[k][0], d, True)
             for k, d in enumerate(detections)
             if shares[k] >= self.clear_share
         ]
@@ -1015,9 +1020,9 @@ class GeometricDetector:
                 continue
             far = math.hypot(*center)
             nearer = [
-                _Standing(feet[k][0], feet[k][1], detections[k].height)
+                _standing(feet[k][0], detections[k], shares[k] >= self.clear_share)
                 for k in solid
-                if math.hypot(*feet[k][0]) < far and shares[k] >= self.clear_share
+                if math.hypot(*feet[k][0]) < far
             ]
             if top < self.fragment_min_height:
                 # Low pieces: clear plastic lying, or the liquid in a clear cup, whose wall
@@ -1139,8 +1144,9 @@ class GeometricDetector:
         real frames, 22-75 % per frame; the rest mostly shows what is behind). Missing depth
         alone, not depth behind the surface: a fitted cylinder wider than a round or tapered
         object (fruit, a bowl) sees the table behind its edges. Samples whose line of sight
-        passes through one of ``skip`` (nearer clear objects, which blank what is behind them)
-        are left out. 0 with fewer than 12 samples to judge by."""
+        passes through one of ``skip`` (nearer objects: they do not see this one's surface;
+        with ``skip_beyond``, clear ones anywhere on the line carried on past the sample) are
+        left out. 0 with fewer than 12 samples to judge by."""
         to_cam = -center / max(math.hypot(*center), 1e-9)
         lateral = np.array([-to_cam[1], to_cam[0]])
         t = radius * _SEE_ACROSS
@@ -1737,13 +1743,18 @@ def _behind_front(points: Array, radius: float) -> Array:
     return distance * np.array([math.cos(bearing), math.sin(bearing)])
 
 
+def _standing(center: Array, det: Detection, clear: bool) -> _Standing:
+    """The cylinder a detection standing at ``center`` (u, w) blocks lines of sight with: its
+    fitted one, 1 cm wider when it is clear (a fit to clear plastic's patches may be narrow)."""
+    return _Standing(center, det.radius + (_CLEAR_MARGIN if clear else 0.0), det.height)
+
+
 def _seen_through(
     uw: Array,
     h: Array,
     camera_height: float,
     cylinders: Sequence[_Standing],
     beyond: bool = False,
-    margin: float = 0.01,
 ) -> NDArray[np.bool_]:
     """Whether the line of sight from the camera (over the table plane's origin,
     ``camera_height`` above it) to each point (``uw`` (N, 2) in the table plane, ``h`` (N,)
@@ -1753,7 +1764,6 @@ def _seen_through(
     hidden = np.zeros(len(uw), dtype=bool)
     d2 = np.maximum(np.einsum("ij,ij->i", uw, uw), 1e-12)
     for c, r, top in cylinders:
-        r = r + margin
         t_mid = (uw @ c) / d2
         du = uw[:, 0] * t_mid - c[0]
         dw = uw[:, 1] * t_mid - c[1]
