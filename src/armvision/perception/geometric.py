@@ -1566,10 +1566,11 @@ class GeometricDetector:
     ) -> tuple[int, int, int, int]:
         """What the full-resolution depth shows across the top: of 21 samples (a 5 x 5
         grid's, within the disc) on the disc inside ``closed_top_inner`` x the radius at
-        ``rim`` height, how many return depth within ``closed_top_tolerance`` (or 3 sigma) of
-        that disc (a lid) and how many beyond it (over the rim into an opening); nearer (a
-        nearer object) and missing depth are neither. The strided cloud loses a top seen at
-        a low angle: its depth changes fast across it, so it goes with the edges."""
+        ``rim`` height, how many return depth (on, beyond, nearer, missing): within
+        ``closed_top_tolerance`` (or 3 sigma) of that disc (a lid), beyond it (over the rim
+        into an opening), nearer (something in front hides the top) or none (samples outside
+        the image are in none). The strided cloud loses a top seen at a low angle: its depth
+        changes fast across it, so it goes with the edges."""
         a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
         grid = np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
         uw = center + grid
@@ -1758,7 +1759,8 @@ def _seen_through(
 ) -> NDArray[np.bool_]:
     """Whether the line of sight from the camera (over the table plane's origin,
     ``camera_height`` above it) to each point (``uw`` (N, 2) in the table plane, ``h`` (N,)
-    above it) passes through one of ``cylinders`` before reaching the point. Along the sight
+    above it) passes through one of ``cylinders`` before reaching the point (with ``beyond``,
+    anywhere along it, carried on past the point until it meets the table). Along the sight
     line the height falls, so it passes through a cylinder when it meets the cylinder's
     circle and is below the cylinder's top where it leaves it (or at the point)."""
     hidden = np.zeros(len(uw), dtype=bool)
