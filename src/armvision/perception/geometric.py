@@ -957,18 +957,16 @@ class GeometricDetector:
         """
         plane = np.column_stack([e1, e2])
         feet = [(d.center_cam @ plane, d.radius) for d in detections]
-        clear_ones = [
-            _standing(feet[k][0], d, True)
-            for k, d in enumerate(detections)
-            if shares[k] >= self.clear_share
-        ]
+        clear = [share >= self.clear_share for share in shares]
+        standing = [_standing(feet[k][0], d, clear[k]) for k, d in enumerate(detections)]
+        clear_ones = [standing[k] for k in range(len(detections)) if clear[k]]
         pieces = [
             k
             for k, d in enumerate(detections)
             if d.label != "bottle"
             and d.radius < self.clear_refit_radius
             and (
-                shares[k] >= self.clear_share
+                clear[k]
                 or self._see_through(
                     frame,
                     _behind_front(uw[members[k]], self.fragment_radius),
@@ -1019,11 +1017,7 @@ class GeometricDetector:
             if any(math.hypot(*(center - c)) < r + gap for c, r in feet[len(detections) :]):
                 continue
             far = math.hypot(*center)
-            nearer = [
-                _standing(feet[k][0], detections[k], shares[k] >= self.clear_share)
-                for k in solid
-                if math.hypot(*feet[k][0]) < far
-            ]
+            nearer = [standing[k] for k in solid if math.hypot(*feet[k][0]) < far]
             if top < self.fragment_min_height:
                 # Low pieces: clear plastic lying, or the liquid in a clear cup, whose wall
                 # above returns no depth where what stands behind it would.
