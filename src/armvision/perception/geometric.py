@@ -69,6 +69,26 @@ class _Standing(NamedTuple):
     height: float
 
 
+class _TopDisc(NamedTuple):
+    """What the full-resolution depth shows over an object's top (:meth:`_top_disc`): how
+    many samples lie on it (a lid), beyond it (an opening), nearer (something in front) or
+    return none."""
+
+    on: int
+    beyond: int
+    nearer: int
+    missing: int
+
+
+class _Fit(NamedTuple):
+    """A cluster's detection; whether it is one planar face; and, for one called other only
+    because no opening was seen in its top, what its top showed (else None)."""
+
+    detection: Detection
+    planar: bool
+    unopened: _TopDisc | None = None
+
+
 class _Cluster(NamedTuple):
     """One cluster's points: table-plane coordinates (N, 2), heights and depths (N,); its
     wall circle and whether that was fitted already (else it is still to be fitted)."""
@@ -419,7 +439,7 @@ class GeometricDetector:
         )
         fits = [(f, groups[k][0]) for k, f in enumerate(found) if f is not None]
         detections, shares = self._clear_containers(
-            frame, [f[0] for f, _ in fits], [f[1] for f, _ in fits], normal, offset, e1, e2
+            frame, [f for f, _ in fits], normal, offset, e1, e2
         )
         if self.fragment_min_points <= 0:
             return detections
@@ -665,10 +685,11 @@ class GeometricDetector:
         e2: Array,
         circle: _Circle | None = None,
         fitted: bool = False,
-    ) -> tuple[Detection, bool] | None:
-        """The cluster's detection, and whether it is one planar face: no round wall and its
-        points within ``flat_face_rms`` (RMS) of one line in the table plane. ``circle`` is
-        its :meth:`_wall_circle` when ``fitted``; else that is fitted here."""
+    ) -> _Fit | None:
+        """The cluster's detection, whether it is one planar face (no round wall and its
+        points within ``flat_face_rms`` (RMS) of one line in the table plane) and what its top
+        showed if it is other for showing no opening. ``circle`` is its :meth:`_wall_circle`
+        when ``fitted``; else that is fitted here."""
         cluster = _Cluster(uw, h, z, circle, fitted)
         return self._fit_clusters(frame, [cluster], normal, offset, e1, e2)[0]
 
@@ -680,7 +701,7 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> list[tuple[Detection, bool] | None]:
+    ) -> list[_Fit | None]:
         """:meth:`_fit_cluster` of every cluster, the circle fits of one kind run together:
         the wall circles not fitted yet, then the bottles' bodies (:meth:`_bottle_body`)."""
         sigmas = [self._sigma(c.z) for c in clusters]
@@ -720,19 +741,19 @@ class GeometricDetector:
                 ),
             )
         )
-        out: list[tuple[Detection, bool] | None] = []
+        out: list[_Fit | None] = []
         for k, shape in enumerate(shapes):
             if shape is None:
                 out.append(None)
                 continue
-            label, top, circle, planar = shape
+            label, top, circle, planar, unopened = shape
             if label == "bottle":
                 c = clusters[k]
                 circle = self._bottle_body(
                     c.uw, c.h, top, sigmas[k], circle, body_fits.get(k), fitted=True
                 )
             det = self._detection(frame, label, top, circle, sigmas[k], normal, offset, e1, e2)
-            out.append((det, planar))
+            out.append(_Fit(det, planar, unopened))
         return out
 
     def _shape(
@@ -746,10 +767,11 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> tuple[Label, float, _Circle, bool] | None:
+    ) -> tuple[Label, float, _Circle, bool, _TopDisc | None] | None:
         """A cluster's label, height (``top``, :meth:`_top`), circle (its wall's, or without
-        a round wall its flat face's) and whether it is one planar face; None if it is too
-        low or shapeless."""
+        a round wall its flat face's), whether it is one planar face and, when it is other
+        only for showing no opening in its top, what the top showed; None if it is too low or
+        shapeless."""
         if top < self.min_object_height:
             return None
         if circle is None or not self._radius_ok(circle[1]):
@@ -763,7 +785,7 @@ class GeometricDetector:
             side = uw[h < 0.75 * top]
             wide = face[1] >= 1.5 * self.clear_min_radius and len(side) >= 20
             planar = wide and _line_ss(side) < len(side) * self.flat_face_rms**2
-            return "other", top, face, planar
+            return "other", top, face, planar, None
         center, radius, res, wall = circle
         rim = self._rim(uw, h, center, radius, top)
         label = self._classify(uw, h, center, radius, top, res, wall, rim=rim)
@@ -774,24 +796,34 @@ class GeometricDetector:
             and self._body_hidden(frame, h, center, top, normal, offset, e1, e2)
         ):
             label = "bottle"  # a bottle's neck and cap above a nearer object that hides it
+        unopened = None
         if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
+            # What the top showed, kept for _clear_containers when the top quarter is as wide
+            # as the wall (a vessel's rim; a fruit narrows to its top): an object called
+            # other below for showing no opening may have had its top blanked by clear
+            # plastic in front.
+            upper = _radial(uw[h > 0.75 * top], center)
+            rimmed = len(upper) >= 5 and percentile(upper, 75.0) >= radius
             elevation = math.atan2(offset - top, math.hypot(*center))
             far_top = self._far_top_in_view(frame, center, radius, top, normal, offset, e1, e2)
+            disc = self._top_disc(frame, center, radius, rim, normal, offset, e1, e2)
             if elevation >= math.radians(self.inside_min_elevation_deg) and far_top:
-                label = "other"  # its top in view from above, yet no inside: closed
+                # Its top in view from above, yet no inside: closed (unless clear plastic in
+                # front blanked it: _clear_containers).
+                label, unopened = "other", disc if rimmed else None
             else:
-                on, beyond, nearer, missing = self._top_disc(
-                    frame, center, radius, rim, normal, offset, e1, e2
-                )
-                judged = on + beyond
-                if judged >= self.closed_top_min_points and on >= self.closed_top_fraction * judged:
+                judged = disc.on + disc.beyond
+                if (
+                    judged >= self.closed_top_min_points
+                    and disc.on >= self.closed_top_fraction * judged
+                ):
                     label = "other"  # a lid where a cup's opening would be
-                elif beyond < self.opening_min_points and missing <= nearer:
+                elif disc.beyond < self.opening_min_points and disc.missing <= disc.nearer:
                     # Its top hidden by something nearer (or out of the image): no opening
                     # seen, and none to be seen. A top returning no depth is left a cup: clear
                     # plastic, its own or in front, blanks it (judged by _clear_containers).
-                    label = "other"
-        return label, top, circle, False
+                    label, unopened = "other", disc if rimmed else None
+        return label, top, circle, False, unopened
 
     def _detection(
         self,
@@ -849,8 +881,7 @@ class GeometricDetector:
     def _clear_containers(
         self,
         frame: RGBDFrame,
-        detections: list[Detection],
-        planar: Sequence[bool],
+        fits: Sequence[_Fit],
         normal: Array,
         offset: float,
         e1: Array,
@@ -870,7 +901,13 @@ class GeometricDetector:
         above returning no depth (:meth:`_clear_above`, lines of sight through any clear
         object, nearer or behind, left out: above it the rays meet what stands behind, an
         opaque object returns depth): a
-        cup. Returns the detections and each one's missing share."""
+        cup. So is one called other for showing no opening in its top when that top returned
+        no depth over more of it than returned any (:meth:`_top_disc`) and at least half of
+        it lies behind a clear object: the clear plastic in front blanked it, so nothing was
+        seen there, closed or open (when its top quarter is as wide as its wall, see
+        :meth:`_shape`). Returns the detections and each one's missing share."""
+        detections = [f.detection for f in fits]
+        planar = [f.planar for f in fits]
         out = list(detections)
         shares = [0.0] * len(out)
         if self.clear_share >= 1.0:
@@ -900,6 +937,11 @@ class GeometricDetector:
                 out[i] = dataclasses.replace(det, label=label, box=box)
         for i in solid:
             det = out[i]
+            if det.label == "other" and self._blanked_top(
+                det, fits[i].unopened, centers[i], offset, clear_ones
+            ):
+                out[i] = dataclasses.replace(det, label="cup")
+                continue
             # Above it, the rays meet what stands behind: missing depth there may be a clear
             # object's, nearer or behind, through which samples are left out; an opaque one
             # returns depth.
@@ -910,6 +952,33 @@ class GeometricDetector:
             ):
                 out[i] = dataclasses.replace(det, label="cup")
         return out, shares
+
+    def _blanked_top(
+        self,
+        det: Detection,
+        disc: _TopDisc | None,
+        center: Array,
+        offset: float,
+        clear_ones: Sequence[_Standing],
+    ) -> bool:
+        """Whether an object called other for showing no opening (``disc``: what its top
+        showed) saw its top only through clear plastic in front: the top mostly returned no
+        depth (more samples than returned any) and the lines of sight to at least half of a
+        grid over it (:meth:`_top_disc`'s, at the object's height) pass through one of
+        ``clear_ones``. On cluttered seeds 0-399 these were four tumblers and clear cups
+        behind clear bottles; a can and a fruit behind clear bottles showed their tops
+        (the bottle's front returned depth over them), and a fruit whose top was blanked
+        narrows to it."""
+        if (
+            disc is None
+            or not clear_ones
+            or disc.missing <= disc.on + disc.beyond
+            or disc.missing < disc.nearer
+        ):
+            return False
+        grid = self._disc_grid(det.radius)
+        behind = _seen_through(center + grid, np.full(len(grid), det.height), offset, clear_ones)
+        return float(behind.mean()) >= 0.5
 
     def _clear_pieces(
         self,
@@ -1557,7 +1626,7 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> tuple[int, int, int, int]:
+    ) -> _TopDisc:
         """What the full-resolution depth shows across the top: of 21 samples (a 5 x 5
         grid's, within the disc) on the disc inside ``closed_top_inner`` x the radius at
         ``rim`` height, how many return depth (on, beyond, nearer, missing): within
@@ -1565,20 +1634,26 @@ class GeometricDetector:
         into an opening), nearer (something in front hides the top) or none (samples outside
         the image are in none). The strided cloud loses a top seen at a low angle: its depth
         changes fast across it, so it goes with the edges."""
-        a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
-        grid = np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
-        uw = center + grid
+        uw = center + self._disc_grid(radius)
         p_cam = uw[:, :1] * e1 + uw[:, 1:] * e2 + (rim - offset) * normal
         uv, ok = _in_image(frame.intrinsics, p_cam)
         if not ok.any():
-            return 0, 0, 0, 0
+            return _TopDisc(0, 0, 0, 0)
         seen = _depth_at(frame, uv[ok])
         expected = p_cam[ok, 2]
         margin = np.maximum(self.closed_top_tolerance, 3.0 * depth_rms_error(expected))
         on = (seen > 0.0) & (np.abs(seen - expected) <= margin)
         beyond = (seen > 0.0) & (seen > expected + margin)
         nearer = (seen > 0.0) & (seen < expected - margin)
-        return int(on.sum()), int(beyond.sum()), int(nearer.sum()), int((seen <= 0.0).sum())
+        return _TopDisc(
+            int(on.sum()), int(beyond.sum()), int(nearer.sum()), int((seen <= 0.0).sum())
+        )
+
+    def _disc_grid(self, radius: float) -> Array:
+        """The 21 points of a 5 x 5 grid within ``closed_top_inner`` x ``radius`` of a top's
+        centre (u, w offsets), where :meth:`_top_disc` looks."""
+        a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
+        return np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
 
     def _body_hidden(
         self,
