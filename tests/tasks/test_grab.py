@@ -10,14 +10,19 @@ import pytest
 
 from armvision.bench.system import sim_system
 from armvision.config import Config, GrabConfig
+from armvision.fusion.kalman import FilterStats
+from armvision.fusion.loop import FusionSnapshot
 from armvision.fusion.tracker import TrackState
 from armvision.geometry import make_T
 from armvision.robot.base import GripperBase
 from armvision.robot.kinematics import VX300S, fk, ik
+from armvision.runtime.build import uncalibrated
 from armvision.runtime.context import TaskContext
+from armvision.runtime.state import SystemState, TaskStatus
 from armvision.sim.scene import ObjectSpec, SceneSpec, random_camera_pose
 from armvision.tasks.grab import (
     GRASP_MARGIN_M,
+    choose_bottle,
     corridor_clear,
     grab,
     holding,
@@ -59,6 +64,44 @@ def test_plan_follows_the_papers_rule() -> None:
     # Nearer than the stand-off: the waypoint is the bottle's distance itself.
     near = plan_grasp(_track(2, [0.1, 0.0, 0.1]), GrabConfig())
     assert near.waypoint[:3, 3] == pytest.approx([0.1, 0.0, 0.09])
+
+
+def _state(*tracks: TrackState) -> SystemState:
+    """What the system knows when the fusion loop holds ``tracks`` (nothing else seen)."""
+    fusion = FusionSnapshot(0.0, None, None, tracks, None, 0, 0, True, None, FilterStats())
+    return SystemState(
+        0.0,
+        None,
+        (),
+        None,
+        (),
+        None,
+        {},
+        fusion,
+        {},
+        {},
+        TaskStatus(),
+        uncalibrated(Config()),
+        None,
+    )
+
+
+def test_a_chosen_bottle_is_kept_while_bottle_is_among_its_votes() -> None:
+    """A bottle's label may lose the vote while the gripper hides part of it on the way in;
+    the grab asked for that track keeps it. A track never seen as a bottle, or one whose
+    height is unknown, is not taken."""
+    p = [0.45, 0.0, 0.1]
+    outvoted = dataclasses.replace(
+        _track(3, p), label="other", votes=(("bottle", 35.8), ("other", 37.8))
+    )
+    can = dataclasses.replace(_track(4, p), label="other", votes=(("other", 40.0),))
+    no_height = dataclasses.replace(_track(5, p), height=None)
+    state = _state(outvoted, can, no_height)
+    assert state.bottles() == [no_height]  # the bottles the tasks start from
+    assert choose_bottle(state, 0.15, 3) is outvoted
+    assert choose_bottle(state, 0.15, 4) is None
+    assert choose_bottle(state, 0.15, 5) is None
+    assert choose_bottle(state, 0.15, 6) is None  # no such track
 
 
 def test_safe_start_pose_is_the_papers_when_reachable_else_the_nearest() -> None:
