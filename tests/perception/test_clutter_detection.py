@@ -414,6 +414,24 @@ def test_a_tumbler_whose_top_only_clear_plastic_blanked_is_a_cup_a_fruit_is_not(
     assert label == "other"  # without the rim test: cup
 
 
+def test_a_tall_box_is_not_a_bottle() -> None:
+    """Boxes 14.5 cm tall (above ``bottle_min_height``), at eight turns on the cluttered
+    bench: a box's two faces fit two straight lines better than a circle, and no neck, cap or
+    gap stands above them, so each is other (before the straight-wall test covered tall
+    objects, two of the eight were bottles)."""
+    config = load_config(None, ["sim.profile=cluttered"])
+    for seed in range(8):
+        box = random_cluttered_object(np.random.default_rng(seed), "box", "box")
+        box = dataclasses.replace(
+            box, height=0.145, x=0.45, y=0.05 * (seed % 3 - 1), yaw=0.3 + 0.2 * seed
+        )
+        placed, found = detect_placed(config, seed, (box,))
+        center = placed[0][1]
+        det = min(found, key=lambda d: float(np.linalg.norm(d.center_cam - center)))
+        assert float(np.linalg.norm(det.center_cam - center)) < 0.03, seed
+        assert det.label == "other", seed
+
+
 def test_the_circle_most_points_agree_on_is_the_mugs_not_its_handles() -> None:
     """A mug with its handle toward the camera (a rendered mug in clutter pulled the wall fit
     to a 4.7 m circle): the body's front arc and a handle 18 mm out over 6 cm of width. The

@@ -205,7 +205,10 @@ class GeometricDetector:
     depth), is other when its top ``top_band`` is as wide as the body (75th
     percentile of distances from the axis at least ``wide_top_ratio`` x the radius or, if
     larger, x the median over 2 cm slices below of the same percentile: a can stack or
-    canister; a partly seen wall fits a circle narrower than its points). A closed
+    canister; a partly seen wall fits a circle narrower than its points), and a tall object
+    with no neck, cap or gap is other when its camera-facing wall fits two straight lines (as
+    for cups, below) over at least ``tall_face_min_width`` (a box standing on end; a narrower
+    arc is nearly straight: a bottle's sliver past a nearer object). A closed
     top: of the points inside the rim (nearer the axis than ``closed_top_inner`` x the radius,
     at least ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies
     within ``closed_top_tolerance`` of the rim (the near wall's 99th-percentile height, at
@@ -286,6 +289,7 @@ class GeometricDetector:
         bowl_height_ratio: float = 0.65,
         straight_wall_ratio: float = 0.8,
         straight_wall_min_rms: float = 0.002,
+        tall_face_min_width: float = 0.05,
         full_support_points: int = 150,
         pixel_stride: int = 2,
         max_fit_points: int = 600,
@@ -379,6 +383,7 @@ class GeometricDetector:
         self.bowl_height_ratio = float(bowl_height_ratio)
         self.straight_wall_ratio = float(straight_wall_ratio)
         self.straight_wall_min_rms = float(straight_wall_min_rms)
+        self.tall_face_min_width = float(tall_face_min_width)
         self.full_support_points = int(full_support_points)
         if int(pixel_stride) < 1:
             raise ValueError(f"pixel_stride must be >= 1, not {pixel_stride}")
@@ -1529,6 +1534,14 @@ class GeometricDetector:
                 r_body = max(r_body, float(np.median(per_slice)))
             if percentile(r_top, 75.0) >= self.wide_top_ratio * r_body:
                 return "other"
+        if (
+            top >= self.bottle_min_height
+            and not (neck or capped or gap)
+            and res is not None
+            and wall is not None
+            and self._straight_walls(uw[wall], res[wall], min_width=self.tall_face_min_width)
+        ):
+            return "other"  # a tall box: two straight faces, nothing of a bottle above them
         if top >= self.bottle_min_height or neck or capped:
             return "bottle"
         if closed:
@@ -1736,11 +1749,12 @@ class GeometricDetector:
         at_rim = np.abs(h[inside] - top) < self.closed_top_tolerance
         return float(at_rim.mean()) >= self.closed_top_fraction
 
-    def _straight_walls(self, points: Array, res: Array) -> bool:
+    def _straight_walls(self, points: Array, res: Array, min_width: float = 0.0) -> bool:
         """Whether the camera-facing wall fits two straight lines (a box's corner, or one
         face) much better than the circle: RMS distance to the better of the best split into
         two lines below ``straight_wall_ratio`` x the circle's RMS residual, which must
-        itself exceed ``straight_wall_min_rms`` (a round wall fits the circle to the noise)."""
+        itself exceed ``straight_wall_min_rms`` (a round wall fits the circle to the noise),
+        over at least ``min_width`` of width (a narrow arc is nearly straight)."""
         if len(points) < 20:
             return False
         circle_rms = float(np.sqrt(np.mean(res**2)))
@@ -1749,7 +1763,10 @@ class GeometricDetector:
         points = points[:: max(1, len(points) // self.max_fit_points)]
         q = points - points.mean(axis=0)
         _, vecs = np.linalg.eigh(q.T @ q)
-        ordered = q[np.argsort(q @ vecs[:, 1])]
+        along = q @ vecs[:, 1]
+        if float(along.max() - along.min()) < min_width:
+            return False
+        ordered = q[np.argsort(along)]
         n = len(ordered)
         # Every split's two line fits at once, from prefix sums of the moments.
         x, y = ordered[:, 0], ordered[:, 1]
