@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from tests.perception.helpers import detect_placed
+from tests.perception.helpers import TiltedBench, detect_placed
 
 from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import load_config
@@ -83,6 +83,38 @@ def test_bottle_heights_include_caps_and_the_sports_bottles_loop(clutter) -> Non
             continue
         det = min(found, key=lambda d: float(np.linalg.norm(d.center_cam - center)))
         assert abs(det.height - height) < 0.005, (kind, det.height, height)
+
+
+def _bottle_with_cap(cap: tuple[float, float] | None) -> tuple[TiltedBench, np.ndarray, RGBDFrame]:
+    """Exact depth of a clear bottle whose body (3 cm radius) returned depth up to 18 cm and
+    nothing above (its clear shoulder and neck), with an opaque cap of 13 mm radius from
+    ``cap[0]`` to ``cap[1]`` m, lid included (None: no cap). Returns the bench, the foot and
+    the frame."""
+    bench = TiltedBench()
+    foot = bench.table_point(320.0, 360.0)
+    depth = bench.table_depth()
+    near, _ = bench.cylinder(foot, 0.03)
+    h_body = bench.heights(near)
+    depth = np.where((h_body > 0.18) & (h_body < 0.40), 0.0, depth)  # the clear upper body
+    if cap is not None:
+        low, high = cap
+        cap_depth = bench.vessel(foot, 0.013, high, lid=True)
+        cap_near, _ = bench.cylinder(foot, 0.013)
+        on_cap = (cap_depth != bench.table_depth()) & ~(bench.heights(cap_near) < low)
+        depth = np.where(on_cap, cap_depth, depth)
+    depth = np.where((h_body >= 0.0) & (h_body <= 0.18), near, depth)
+    return bench, foot, bench.frame(np.nan_to_num(depth))
+
+
+def test_a_clear_bottles_top_is_its_cap_above_a_neck_that_returned_nothing() -> None:
+    """On cluttered seeds a clear wine bottle's cluster ended 10-14 cm under its cap (its
+    neck returned no depth, the cap too few strided points): the top climbs to the cap's
+    points near the axis, a group a few centimetres tall. Without a cap, or with something
+    taller than a cap above the body, the top stays."""
+    for cap, expected in (((0.285, 0.30), 0.30), (None, 0.18), ((0.20, 0.30), 0.18)):
+        bench, foot, frame = _bottle_with_cap(cap)
+        top = GeometricDetector()._cap_top(frame, foot, bench.up, bench.height, 0.03, 0.18)
+        assert abs(top - expected) < 0.004, (cap, top)
 
 
 def test_depth_edges_mark_jumps_and_flying_pixels_not_a_noisy_plane() -> None:

@@ -392,6 +392,9 @@ class GeometricDetector:
         self._rng = np.random.default_rng(seed)
         #: The last frame's table plane n.p_cam + d = 0 (n toward the camera), for debugging.
         self.last_plane: tuple[Array, float] | None = None
+        #: The frame being detected's camera pose and joint angles, for the self-filter of
+        #: what is looked at beyond the strided cloud (:meth:`_cap_top`).
+        self._frame_pose: tuple[Array | None, ArrayLike | None] = (None, None)
 
     # ---------------------------------------------------------------- public
 
@@ -399,6 +402,7 @@ class GeometricDetector:
         """Bottles and cups in ``frame``; the context's camera pose gives the table prior and
         the workspace crop, its joint angles the self-filter (see the class docstring)."""
         T_base_cam = _pose(context.T_base_cam)
+        self._frame_pose = (T_base_cam, context.joint_positions)
         intr = frame.intrinsics
         depth = np.asarray(frame.depth)
         if depth.shape != (intr.height, intr.width):
@@ -861,6 +865,7 @@ class GeometricDetector:
                 top = max(top, body_top / self.bottle_body_fraction)
         elif label == "bottle":
             top = self._thin_top(frame, foot_cam, normal, offset, e1, e2, radius, top)
+            top = self._cap_top(frame, foot_cam, normal, offset, radius, top)
         n_wall = int(wall.sum())
         fit_fraction = float((np.abs(res[wall]) < 2.5 * sigma).mean())
         score = fit_fraction * min(1.0, n_wall / self.full_support_points)
@@ -1600,6 +1605,56 @@ class GeometricDetector:
         # structure: a few millimetres above the top the strided cloud saw.
         raised = float(heights[climb - 3])
         return raised if raised > top + self.closed_top_tolerance else top
+
+    def _cap_top(
+        self,
+        frame: RGBDFrame,
+        foot_cam: Array,
+        normal: Array,
+        offset: float,
+        radius: float,
+        top: float,
+        gap: float = 0.01,
+        min_points: int = 10,
+        spread: float = 0.03,
+    ) -> float:
+        """A clear bottle's top where its neck returned no depth but its cap did: of the
+        full-resolution pixels above ``top`` (up to ``max_height``) whose points lie within
+        0.6 x the radius of the axis (and off the arm, by the frame's self-filter), grouped
+        where their heights part by more than ``gap``, the highest group of at least
+        ``min_points`` no taller than ``spread`` (a cap, not a surface) gives the top, its
+        95th-percentile height. ``top`` unchanged without one. On cluttered seeds the cluster
+        of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low)."""
+        intr = frame.intrinsics
+        column = foot_cam + np.outer([top + gap, self.max_height], normal)
+        uv = project(intr, column)
+        if not np.isfinite(uv).all():
+            return top
+        half = 0.6 * radius * intr.fx / max(float(column[:, 2].min()), 0.1)
+        x0 = max(int(uv[:, 0].min() - half), 0)
+        x1 = min(int(uv[:, 0].max() + half) + 1, intr.width)
+        y0 = max(int(uv[:, 1].min()) - 2, 0)
+        y1 = min(int(uv[:, 1].max()) + 3, intr.height)
+        if x1 <= x0 or y1 <= y0:
+            return top
+        z = np.asarray(frame.depth[y0:y1, x0:x1], dtype=float)
+        rows, cols = np.nonzero(z > 0.0)
+        if len(rows) < min_points:
+            return top
+        p = deproject(intr, np.column_stack([cols + x0, rows + y0]), z[rows, cols])
+        h = p @ normal + offset
+        off_axis = p - foot_cam - np.outer(h, normal)
+        near = (np.linalg.norm(off_axis, axis=1) < 0.6 * radius) & (h > top + gap)
+        near &= h < self.max_height
+        if int(near.sum()) < min_points:
+            return top
+        near[near] = self._self_filter(p[near], *self._frame_pose)
+        heights = np.sort(h[near])
+        groups = np.split(heights, np.flatnonzero(np.diff(heights) > gap) + 1)
+        groups = [g for g in groups if len(g) >= min_points]
+        if not groups or groups[-1][-1] - groups[-1][0] > spread:
+            return top
+        return float(np.percentile(groups[-1], 95.0))
 
     def _far_top_in_view(
         self,
