@@ -1576,27 +1576,8 @@ class GeometricDetector:
         lies within 0.6 x the radius of the axis and above the top; the top climbs through
         them while no step exceeds ``step``; its third highest point is the new top if that
         is more than ``closed_top_tolerance`` higher, else the top is unchanged."""
-        intr = frame.intrinsics
-        column = foot_cam + np.outer([top, top + reach], normal)
-        uv = project(intr, column)
-        if not np.isfinite(uv).all():
-            return top
-        half = 0.6 * radius * intr.fx / max(float(column[:, 2].min()), 0.1)
-        x0 = max(int(uv[:, 0].min() - half), 0)
-        x1 = min(int(uv[:, 0].max() + half) + 1, intr.width)
-        y0 = max(int(uv[:, 1].min()) - 2, 0)
-        y1 = min(int(uv[:, 1].max()) + 3, intr.height)
-        if x1 <= x0 or y1 <= y0:
-            return top
-        z = np.asarray(frame.depth[y0:y1, x0:x1], dtype=float)
-        rows, cols = np.nonzero(z > 0.0)
-        if len(rows) == 0:
-            return top
-        p = deproject(intr, np.column_stack([cols + x0, rows + y0]), z[rows, cols])
-        h = p @ normal + offset
-        off_axis = p - foot_cam - np.outer(h, normal)
-        near_axis = np.linalg.norm(off_axis, axis=1) < 0.6 * radius
-        heights = np.sort(h[near_axis & (h > top) & (h < top + reach)])
+        _, heights = self._near_axis(frame, foot_cam, normal, offset, radius, top, top + reach)
+        heights = np.sort(heights)
         steps = np.diff(np.concatenate([[top], heights]))
         climb = int(np.argmax(steps > step)) if (steps > step).any() else len(heights)
         if climb < 3:
@@ -1605,6 +1586,43 @@ class GeometricDetector:
         # structure: a few millimetres above the top the strided cloud saw.
         raised = float(heights[climb - 3])
         return raised if raised > top + self.closed_top_tolerance else top
+
+    def _near_axis(
+        self,
+        frame: RGBDFrame,
+        foot_cam: Array,
+        normal: Array,
+        offset: float,
+        radius: float,
+        low: float,
+        high: float,
+    ) -> tuple[Array, Array]:
+        """The full-resolution points (camera frame, (N, 3)) and their heights (N,) within
+        0.6 x ``radius`` of the axis standing at ``foot_cam`` and between ``low`` and
+        ``high`` above the table, from the pixels of the window where that part of the axis
+        projects (what is too thin or too sparse for the strided cloud)."""
+        none = (np.zeros((0, 3)), np.zeros(0))
+        intr = frame.intrinsics
+        column = foot_cam + np.outer([low, high], normal)
+        uv = project(intr, column)
+        if not np.isfinite(uv).all():
+            return none
+        half = 0.6 * radius * intr.fx / max(float(column[:, 2].min()), 0.1)
+        x0 = max(int(uv[:, 0].min() - half), 0)
+        x1 = min(int(uv[:, 0].max() + half) + 1, intr.width)
+        y0 = max(int(uv[:, 1].min()) - 2, 0)
+        y1 = min(int(uv[:, 1].max()) + 3, intr.height)
+        if x1 <= x0 or y1 <= y0:
+            return none
+        z = np.asarray(frame.depth[y0:y1, x0:x1], dtype=float)
+        rows, cols = np.nonzero(z > 0.0)
+        if len(rows) == 0:
+            return none
+        p = deproject(intr, np.column_stack([cols + x0, rows + y0]), z[rows, cols])
+        h = p @ normal + offset
+        off_axis = p - foot_cam - np.outer(h, normal)
+        near = (np.linalg.norm(off_axis, axis=1) < 0.6 * radius) & (h > low) & (h < high)
+        return p[near], h[near]
 
     def _cap_top(
         self,
@@ -1625,31 +1643,10 @@ class GeometricDetector:
         ``min_points`` no taller than ``spread`` (a cap, not a surface) gives the top, its
         95th-percentile height. ``top`` unchanged without one. On cluttered seeds the cluster
         of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low)."""
-        intr = frame.intrinsics
-        column = foot_cam + np.outer([top + gap, self.max_height], normal)
-        uv = project(intr, column)
-        if not np.isfinite(uv).all():
+        p, h = self._near_axis(frame, foot_cam, normal, offset, radius, top + gap, self.max_height)
+        if len(h) < min_points:
             return top
-        half = 0.6 * radius * intr.fx / max(float(column[:, 2].min()), 0.1)
-        x0 = max(int(uv[:, 0].min() - half), 0)
-        x1 = min(int(uv[:, 0].max() + half) + 1, intr.width)
-        y0 = max(int(uv[:, 1].min()) - 2, 0)
-        y1 = min(int(uv[:, 1].max()) + 3, intr.height)
-        if x1 <= x0 or y1 <= y0:
-            return top
-        z = np.asarray(frame.depth[y0:y1, x0:x1], dtype=float)
-        rows, cols = np.nonzero(z > 0.0)
-        if len(rows) < min_points:
-            return top
-        p = deproject(intr, np.column_stack([cols + x0, rows + y0]), z[rows, cols])
-        h = p @ normal + offset
-        off_axis = p - foot_cam - np.outer(h, normal)
-        near = (np.linalg.norm(off_axis, axis=1) < 0.6 * radius) & (h > top + gap)
-        near &= h < self.max_height
-        if int(near.sum()) < min_points:
-            return top
-        near[near] = self._self_filter(p[near], *self._frame_pose)
-        heights = np.sort(h[near])
+        heights = np.sort(h[self._self_filter(p, *self._frame_pose)])
         groups = np.split(heights, np.flatnonzero(np.diff(heights) > gap) + 1)
         groups = [g for g in groups if len(g) >= min_points]
         if not groups or groups[-1][-1] - groups[-1][0] > spread:

@@ -47,7 +47,9 @@ Safety and robustness: a bottle nearer than ``min_base_distance`` to the base ax
 task; every motion's result is checked and a refused one is tried again after
 ``retry_delay_s`` (``retries`` times) before the task fails with the arm's reason; the track is
 re-read before the waypoint and before the approach, and if the bottle moved by more than
-:data:`MOVED_M` the plan is made again; the task fails after ``timeout_s`` (each new attempt
+:data:`MOVED_M` the plan is made again (the bottle chosen is kept by its track id while
+bottle is among its label votes: the gripper hiding part of it on the way in can tip the vote,
+:func:`tracked_bottle`); the task fails after ``timeout_s`` (each new attempt
 after a missed or slipped grasp has ``timeout_s`` of its own). A failed
 grasp opens the gripper and backs off to the waypoint, so nothing is left pinched. Stop
 (TaskStopped) halts the arm where it is, gripper unchanged.
