@@ -28,6 +28,7 @@ from armvision.tasks.grab import (
     holding,
     plan_grasp,
     safe_start_pose,
+    tracked_bottle,
 )
 
 
@@ -88,8 +89,8 @@ def _state(*tracks: TrackState) -> SystemState:
 
 def test_a_chosen_bottle_is_kept_while_bottle_is_among_its_votes() -> None:
     """A bottle's label may lose the vote while the gripper hides part of it on the way in;
-    the grab asked for that track keeps it. A track never seen as a bottle, or one whose
-    height is unknown, is not taken."""
+    the grab that chose it keeps it. A track never seen as a bottle, or one whose height is
+    unknown, is not kept; a first choice takes only a track labelled bottle."""
     p = [0.45, 0.0, 0.1]
     outvoted = dataclasses.replace(
         _track(3, p), label="other", votes=(("bottle", 35.8), ("other", 37.8))
@@ -98,10 +99,11 @@ def test_a_chosen_bottle_is_kept_while_bottle_is_among_its_votes() -> None:
     no_height = dataclasses.replace(_track(5, p), height=None)
     state = _state(outvoted, can, no_height)
     assert state.bottles() == [no_height]  # the bottles the tasks start from
-    assert choose_bottle(state, 0.15, 3) is outvoted
-    assert choose_bottle(state, 0.15, 4) is None
-    assert choose_bottle(state, 0.15, 5) is None
-    assert choose_bottle(state, 0.15, 6) is None  # no such track
+    assert tracked_bottle(state, 3) is outvoted
+    assert tracked_bottle(state, 4) is None
+    assert tracked_bottle(state, 5) is None
+    assert tracked_bottle(state, 6) is None  # no such track
+    assert choose_bottle(state, 0.15, 3) is None  # not a bottle now: not a first choice
 
 
 def test_safe_start_pose_is_the_papers_when_reachable_else_the_nearest() -> None:

@@ -176,7 +176,8 @@ class GeometricDetector:
     IRLS on the points within a band of the circle on the side facing the camera, so a cup's
     inner far wall, its liquid and a bottle's liquid surface do not pull it), the height is the
     ``top_rank``-th highest point (for a bottle raised through the full-resolution pixels near
-    its axis: a nozzle or cap loop), and the label comes from the shape (below). A cluster
+    its axis: a nozzle or cap loop, or a cap over a clear neck that returned no depth,
+    :meth:`_cap_top`), and the label comes from the shape (below). A cluster
     with no round wall (a box's face, its grazing side cut off as a depth edge) is "other",
     its footprint's width the diameter. (6) A short cluster cut by the left, right or top
     image border may be a clear bottle whose cap is outside the image: if its silhouette
@@ -227,7 +228,9 @@ class GeometricDetector:
     over the rim into an opening while more of it is hidden by something nearer (or out of
     the image) than returns no depth (a top blanked by clear plastic, its own or in front,
     stays a cup). On cluttered seeds 0-399 the objects whose top was hidden by something
-    nearer were five cans and a fruit, and one tumbler.
+    nearer were five cans and a fruit, and one tumbler. Either way, one whose top returned no
+    depth through a clear object in front (:meth:`_blanked_top`) and whose top quarter is as
+    wide as its wall is a cup after all: nothing of its top was seen.
 
     A bottle's centre and radius are its body's (:meth:`_bottle_body`): the wall circle is
     fitted again below ``body_fit_fraction`` of its height when the whole cluster's circle is
@@ -911,11 +914,10 @@ class GeometricDetector:
         above returning no depth (:meth:`_clear_above`, lines of sight through any clear
         object, nearer or behind, left out: above it the rays meet what stands behind, an
         opaque object returns depth): a
-        cup. So is one called other for showing no opening in its top when that top returned
-        no depth over more of it than returned any (:meth:`_top_disc`) and at least half of
-        it lies behind a clear object: the clear plastic in front blanked it, so nothing was
-        seen there, closed or open (when its top quarter is as wide as its wall, see
-        :meth:`_shape`). Returns the detections and each one's missing share."""
+        cup. So is one called other for showing no opening in its top whose top clear plastic
+        in front blanked (:meth:`_blanked_top`; when its top quarter is as wide as its wall,
+        see :meth:`_shape`): nothing was seen there, closed or open. Returns the detections
+        and each one's missing share."""
         detections = [f.detection for f in fits]
         planar = [f.planar for f in fits]
         out = list(detections)
@@ -972,8 +974,9 @@ class GeometricDetector:
         clear_ones: Sequence[_Standing],
     ) -> bool:
         """Whether an object called other for showing no opening (``disc``: what its top
-        showed) saw its top only through clear plastic in front: the top mostly returned no
-        depth (more samples than returned any) and the lines of sight to at least half of a
+        showed) saw its top only through clear plastic in front: more of the top's samples
+        returned no depth than lay on or beyond it, at least as many as returned something
+        nearer (the clear object's own front), and the lines of sight to at least half of a
         grid over it (:meth:`_top_disc`'s, at the object's height) pass through one of
         ``clear_ones``. On cluttered seeds 0-399 these were four tumblers and clear cups
         behind clear bottles; a can and a fruit behind clear bottles showed their tops
@@ -1640,9 +1643,9 @@ class GeometricDetector:
         full-resolution pixels above ``top`` (up to ``max_height``) whose points lie within
         0.6 x the radius of the axis (and off the arm, by the frame's self-filter), grouped
         where their heights part by more than ``gap``, the highest group of at least
-        ``min_points`` no taller than ``spread`` (a cap, not a surface) gives the top, its
-        95th-percentile height. ``top`` unchanged without one. On cluttered seeds the cluster
-        of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low)."""
+        ``min_points`` gives the top, its 95th-percentile height, when it is no taller than
+        ``spread`` (a cap, not a surface). ``top`` unchanged otherwise. On cluttered seeds
+        the cluster of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low)."""
         p, h = self._near_axis(frame, foot_cam, normal, offset, radius, top + gap, self.max_height)
         if len(h) < min_points:
             return top

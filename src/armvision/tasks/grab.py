@@ -47,7 +47,7 @@ Safety and robustness: a bottle nearer than ``min_base_distance`` to the base ax
 task; every motion's result is checked and a refused one is tried again after
 ``retry_delay_s`` (``retries`` times) before the task fails with the arm's reason; the track is
 re-read before the waypoint and before the approach, and if the bottle moved by more than
-:data:`MOVED_M` the plan is made again (the bottle chosen is kept by its track id while
+:data:`MOVED_M` the plan is made again (once chosen, the bottle is kept by its track id while
 bottle is among its label votes: the gripper hiding part of it on the way in can tip the vote,
 :func:`tracked_bottle`); the task fails after ``timeout_s`` (each new attempt
 after a missed or slipped grasp has ``timeout_s`` of its own). A failed
@@ -215,11 +215,12 @@ def corridor_clear(target: TrackState, others: list[TrackState], standoff: float
 
 
 def tracked_bottle(state: SystemState, track_id: int) -> TrackState | None:
-    """Track ``track_id`` while it may still be a bottle: its height known and bottle among
-    its label votes, whether or not bottle leads them. A bottle's label can lose the vote
-    while the gripper hides part of it on the way in: in a cluttered grab (seed 14 of `eval
-    grab --profile cluttered`) a bottle behind two others, read as other in the frames of the
-    approach, was given up at its pre-grasp point."""
+    """The bottle a grab has chosen, track ``track_id``, while it may still be one: its
+    height known and bottle among its label votes, whether or not bottle leads them. A
+    bottle's label can lose the vote while the gripper hides part of it on the way in: in a
+    cluttered grab (seed 14 of `eval grab --profile cluttered`) a bottle behind two others,
+    read as other in the frames of the approach, was given up at its pre-grasp point. The
+    first choice takes only a track labelled bottle."""
     track = state.track(track_id)
     if track is None or track.height is None or dict(track.votes).get("bottle", 0.0) <= 0.0:
         return None
@@ -227,12 +228,11 @@ def tracked_bottle(state: SystemState, track_id: int) -> TrackState | None:
 
 
 def choose_bottle(state: SystemState, standoff: float, track_id: int | None) -> TrackState | None:
-    """The bottle to take: ``track_id`` if given and tracked (:func:`tracked_bottle`), else
-    the nearest to the base with a clear corridor (else simply the nearest). Only tracks whose
-    height is known."""
-    if track_id is not None:
-        return tracked_bottle(state, track_id)
+    """The bottle to take: ``track_id`` if given and tracked, else the nearest to the base
+    with a clear corridor (else simply the nearest). Only tracks whose height is known."""
     bottles = [t for t in state.bottles() if t.height is not None]
+    if track_id is not None:
+        return next((t for t in bottles if t.id == track_id), None)
     if not bottles:
         return None
     for bottle in bottles:
@@ -490,15 +490,27 @@ class _PlannedGrab(_Grab):
     # ------------------------------------------------------------ planning
 
     def plan_for(
-        self, state: SystemState, track_id: int | None, prefer: int | None = None
+        self,
+        state: SystemState,
+        track_id: int | None,
+        prefer: int | None = None,
+        chosen: bool = True,
     ) -> tuple[TrackState, list[GraspCandidate]]:
         """The bottle to take and its free candidates, best first; _Abort with the refusal's
-        reason if no bottle can be taken. ``track_id``: that bottle only; ``prefer``: that
-        one if it is about as good as the best."""
+        reason if no bottle can be taken. ``track_id``: that bottle only, labelled bottle on
+        the first choice (``chosen`` False), else while bottle is among its votes
+        (:func:`tracked_bottle`); ``prefer``: that one (the bottle chosen before, kept the same
+        way) if it is about as good as the best."""
         bottles = [t for t in state.bottles() if t.height is not None]
+        if prefer is not None and chosen and all(t.id != prefer for t in bottles):
+            kept = tracked_bottle(state, prefer)
+            bottles += [] if kept is None else [kept]
         if track_id is not None:
-            track = tracked_bottle(state, track_id)
-            bottles = [] if track is None else [track]
+            if chosen:
+                track = tracked_bottle(state, track_id)
+                bottles = [] if track is None else [track]
+            else:
+                bottles = [t for t in bottles if t.id == track_id]
             if not bottles:
                 raise _Abort(f"the track of bottle {track_id} was lost")
         scene = state.planning_scene
@@ -653,7 +665,7 @@ class _PlannedGrab(_Grab):
         # refusal is made only after a few looks.
         for attempt in range(PLAN_LOOKS):
             try:
-                track, found = self.plan_for(ctx.state(), self.track_id)
+                track, found = self.plan_for(ctx.state(), self.track_id, chosen=False)
                 break
             except _Abort as exc:
                 if attempt == PLAN_LOOKS - 1:
