@@ -82,7 +82,8 @@ class _TopDisc(NamedTuple):
 
 class _Fit(NamedTuple):
     """A cluster's detection; whether it is one planar face; and, for one called other only
-    because no opening was seen in its top, what its top showed (else None)."""
+    because no opening was seen in its top (its top quarter as wide as its wall), what its top
+    showed (else None)."""
 
     detection: Detection
     planar: bool
