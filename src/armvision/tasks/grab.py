@@ -502,17 +502,18 @@ class _PlannedGrab(_Grab):
         (:func:`tracked_bottle`); ``prefer``: that one (the bottle chosen before, kept the same
         way) if it is about as good as the best."""
         bottles = [t for t in state.bottles() if t.height is not None]
-        if prefer is not None and chosen and all(t.id != prefer for t in bottles):
+        if track_id is not None:
+            track = (
+                tracked_bottle(state, track_id)
+                if chosen
+                else next((t for t in bottles if t.id == track_id), None)
+            )
+            if track is None:
+                raise _Abort(f"the track of bottle {track_id} was lost")
+            bottles = [track]
+        elif prefer is not None and chosen and all(t.id != prefer for t in bottles):
             kept = tracked_bottle(state, prefer)
             bottles += [] if kept is None else [kept]
-        if track_id is not None:
-            if chosen:
-                track = tracked_bottle(state, track_id)
-                bottles = [] if track is None else [track]
-            else:
-                bottles = [t for t in bottles if t.id == track_id]
-            if not bottles:
-                raise _Abort(f"the track of bottle {track_id} was lost")
         scene = state.planning_scene
         model = self.ctx.arm.model
         best: tuple[float, TrackState, list[GraspCandidate]] | None = None
