@@ -17,6 +17,8 @@ from tests.perception.helpers import TiltedBench, detect_placed
 
 from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import load_config
+from armvision.eval.objects import _render, _true_objects
+from armvision.perception.detection import FrameContext
 from armvision.perception.geometric import GeometricDetector
 from armvision.sim.scene import random_camera_pose, random_cluttered_object
 
@@ -372,10 +374,12 @@ def test_a_bottle_joined_at_its_foot_by_a_cups_far_wall_is_fitted_by_its_upper_p
     assert det.label == "bottle"
     assert abs(det.radius - 0.036) < 0.003
     assert math.hypot(det.center_cam[0], det.center_cam[2] - 0.6) < 0.004
-    # Fitted to every point instead, the circle is no container's: a flat face, "other".
+    # Fitted to every point instead, the circle is no container's: a flat face, at best
+    # taken for a clear bottle's neck over a gap that returned nothing (this frame has no
+    # depth), with the prior radius, not the body's.
     whole = GeometricDetector(upper_fit_fraction=0.0)
     fitted = whole._fit_cluster(frame, uw, h, np.full(len(h), 0.6), *plane)
-    assert fitted is None or fitted[0].label == "other"
+    assert fitted is None or fitted[0].label == "other" or abs(fitted[0].radius - 0.036) > 0.005
 
 
 def test_a_bottles_neck_above_a_nearer_can_stack_is_a_bottle() -> None:
@@ -462,6 +466,37 @@ def test_a_tall_box_is_not_a_bottle() -> None:
         det = min(found, key=lambda d: float(np.linalg.norm(d.center_cam - center)))
         assert float(np.linalg.norm(det.center_cam - center)) < 0.03, seed
         assert det.label == "other", seed
+
+
+def _scene_object(seed: int, kind: str) -> tuple[str | None, float]:
+    """Cluttered scene ``seed`` as ``armvision eval perception`` renders it: the label and
+    centre error of the detection nearest its (first) ``kind`` object, None beyond 5 cm."""
+    config = load_config(None, ["sim.profile=cluttered"])
+    config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, randomize_camera=True))
+    frame, true_depth, truth, q = _render(config, seed, "sleep")
+    center = next(
+        o["center_cam"] for o in _true_objects(frame, true_depth, truth, 0.3) if o["kind"] == kind
+    )
+    found = GeometricDetector(seed=seed).detect(
+        frame, FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q)
+    )
+    det = min(found, key=lambda d: float(np.linalg.norm(d.center_cam - center)))
+    error = float(np.linalg.norm(det.center_cam - center))
+    return (det.label if error < 0.05 else None), error
+
+
+def test_a_clear_bottle_seen_as_its_cap_over_a_blank_body_is_a_bottle_a_sliver_is_not() -> None:
+    """Cluttered scenes 34 and 841 (development seeds): a water bottle whose body returned
+    nothing, behind a soda bottle and beside a can stack, shows its cap and neck over a gap
+    with a few liquid points under it and no round wall: other before, a bottle now, its
+    centre on the cap's axis. Scene 358: a canister's sliver beside a nearer sports bottle
+    lost its middle to the depth-edge filter (a gap too, under a narrow top); the
+    full-resolution depth there is its surface, and it stays other."""
+    for seed in (34, 841):
+        label, error = _scene_object(seed, "water_bottle")
+        assert label == "bottle" and error < 0.015, (seed, label, error)
+    label, _ = _scene_object(358, "canister")
+    assert label == "other"
 
 
 def test_a_full_mug_is_a_cup_when_its_handle_shows_a_can_fruit_block_or_box_is_not() -> None:
