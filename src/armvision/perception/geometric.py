@@ -1395,7 +1395,7 @@ class GeometricDetector:
     ) -> _Circle | None:
         """A clear bottle seen as its cap and neck over a body that returned no depth: the
         points above the widest gap in the height profile (at least ``bottle_gap``, and in
-        the upper half) at least 10, no wider across the view than 35 mm, and in the gap,
+        the upper half) at least 10, 10-35 mm wide across the view, and in the gap,
         within 0.6 x ``bottle_prior_radius`` of their axis, the full-resolution depth
         returning under 5 % of what a surface there would (the strided, edge-filtered cloud
         also loses the middle of a thin sliver of a canister behind a nearer object: 14 %
@@ -1412,7 +1412,7 @@ class GeometricDetector:
         above = uw[order[k + 1 :]]
         if len(above) < 10:
             return None
-        cap = self._flat_face(above)
+        cap = self._flat_face(above, min_radius=0.005)
         if cap is None or cap[1] > 0.0175:
             return None
         center = cap[0]
@@ -1429,18 +1429,20 @@ class GeometricDetector:
             return None
         return center, self.bottle_prior_radius, np.zeros(len(uw)), np.ones(len(uw), dtype=bool)
 
-    def _flat_face(self, uw: Array) -> _Circle | None:
+    def _flat_face(self, uw: Array, min_radius: float | None = None) -> _Circle | None:
         """A cluster without a round wall as a footprint circle: its width across the view
         (2nd to 98th percentile along its principal axis) as the diameter, the centre half
         that width behind the middle of the seen face; None when wider than twice the
-        largest radius. Residuals are zero and every point is "wall" (score from support)."""
+        largest radius or narrower than ``min_radius`` (the smallest radius by default).
+        Residuals are zero and every point is "wall" (score from support)."""
         mid = uw.mean(axis=0)
         q = uw - mid
         _, vecs = np.linalg.eigh(q.T @ q)
         along = q @ vecs[:, 1]
         lo, hi = np.percentile(along, [2.0, 98.0])
         radius = 0.5 * float(hi - lo)
-        if not self.radius_range[0] <= radius <= 2.0 * self.radius_range[1]:
+        low = self.radius_range[0] if min_radius is None else min_radius
+        if not low <= radius <= 2.0 * self.radius_range[1]:
             return None
         away = mid / max(math.hypot(*mid), 1e-9)
         center = mid + vecs[:, 1] * 0.5 * float(hi + lo) + radius * away
