@@ -887,8 +887,10 @@ class GeometricDetector:
                 label = "bottle"
                 top = max(top, body_top / self.bottle_body_fraction)
         elif label == "bottle":
-            top = self._thin_top(frame, foot_cam, normal, offset, e1, e2, radius, top)
-            top = self._cap_top(frame, foot_cam, normal, offset, radius, top)
+            # The full-resolution points near the axis above the top, read once for both.
+            near = self._near_axis(frame, foot_cam, normal, offset, radius, top, self.max_height)
+            top = self._thin_top(frame, foot_cam, normal, offset, e1, e2, radius, top, near=near)
+            top = self._cap_top(frame, foot_cam, normal, offset, radius, top, near=near)
         n_wall = int(wall.sum())
         fit_fraction = float((np.abs(res[wall]) < 2.5 * sigma).mean())
         score = fit_fraction * min(1.0, n_wall / self.full_support_points)
@@ -1641,14 +1643,18 @@ class GeometricDetector:
         top: float,
         reach: float = 0.04,
         step: float = 0.006,
+        near: tuple[Array, Array] | None = None,
     ) -> float:
         """A bottle's top with what is too thin for the strided, edge-filtered cloud: a
         nozzle or a cap loop (a few millimetres, one or two pixels wide, all depth edge).
         Every full-resolution pixel in the window above the top within ``reach`` whose point
         lies within 0.6 x the radius of the axis and above the top; the top climbs through
         them while no step exceeds ``step``; its third highest point is the new top if that
-        is more than ``closed_top_tolerance`` higher, else the top is unchanged."""
-        _, heights = self._near_axis(frame, foot_cam, normal, offset, radius, top, top + reach)
+        is more than ``closed_top_tolerance`` higher, else the top is unchanged. ``near``:
+        :meth:`_near_axis`'s points from ``top`` up, when the caller has them."""
+        if near is None:
+            near = self._near_axis(frame, foot_cam, normal, offset, radius, top, top + reach)
+        heights = near[1][(near[1] > top) & (near[1] < top + reach)]
         heights = np.sort(heights)
         steps = np.diff(np.concatenate([[top], heights]))
         climb = int(np.argmax(steps > step)) if (steps > step).any() else len(heights)
@@ -1707,6 +1713,7 @@ class GeometricDetector:
         gap: float = 0.01,
         min_points: int = 10,
         spread: float = 0.03,
+        near: tuple[Array, Array] | None = None,
     ) -> float:
         """A clear bottle's top where its neck returned no depth but its cap did: of the
         full-resolution pixels above ``top`` (up to ``max_height``) whose points lie within
@@ -1714,8 +1721,13 @@ class GeometricDetector:
         where their heights part by more than ``gap``, the highest group of at least
         ``min_points`` gives the top, its 95th-percentile height, when it is no taller than
         ``spread`` (a cap, not a surface). ``top`` unchanged otherwise. On cluttered seeds
-        the cluster of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low)."""
-        p, h = self._near_axis(frame, foot_cam, normal, offset, radius, top + gap, self.max_height)
+        the cluster of a clear wine bottle ended 10-14 cm under its cap (centre 5-7 cm low).
+        ``near``: :meth:`_near_axis`'s points from at most ``top`` up, when the caller has
+        them."""
+        if near is None:
+            near = self._near_axis(frame, foot_cam, normal, offset, radius, top, self.max_height)
+        above = near[1] > top + gap
+        p, h = near[0][above], near[1][above]
         if len(h) < min_points:
             return top
         heights = np.sort(h[self._self_filter(p, *self._frame_pose)])
