@@ -486,14 +486,22 @@ def _scene_object(seed: int, kind: str) -> tuple[str | None, float]:
 
 
 def test_a_clear_bottle_seen_as_its_cap_over_a_blank_body_is_a_bottle_a_sliver_is_not() -> None:
-    """Cluttered scenes 34, 841 and 704 (development seeds): a water bottle whose body
-    returned nothing, behind a soda bottle and beside a can stack, and a soda bottle whose
-    cap is 15 mm wide show their cap and neck over a gap with a few liquid points under it
-    and no round wall: other before, bottles now, centred on the cap's axis. Scene 358: a
+    """Cluttered scenes 34, 841, 704 and 984 (development seeds): a water bottle whose body
+    returned nothing, behind a soda bottle and beside a can stack, a soda bottle whose cap
+    is 15 mm wide, and a tinted bottle with four pieces of its cap above its top (the gap
+    under them is not the one that counts) show their cap and neck over a gap with a few
+    liquid points under it and no round wall: other before, bottles now, centred on the
+    cap's axis. Scene 358: a
     canister's sliver beside a nearer sports bottle lost its middle to the depth-edge
     filter (a gap too, under a narrow top); the full-resolution depth there is its surface,
     and it stays other."""
-    for seed, kind in ((34, "water_bottle"), (841, "water_bottle"), (704, "soda_bottle")):
+    cases = (
+        (34, "water_bottle"),
+        (841, "water_bottle"),
+        (704, "soda_bottle"),
+        (984, "tinted_bottle"),
+    )
+    for seed, kind in cases:
         label, error = _scene_object(seed, kind)
         assert label == "bottle" and error < 0.015, (seed, label, error)
     label, _ = _scene_object(358, "canister")

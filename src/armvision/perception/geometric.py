@@ -1404,7 +1404,9 @@ class GeometricDetector:
         there, at most 2.4 % on clear bottles). Its circle is about their axis,
         ``bottle_prior_radius`` wide (None when not so)."""
         order = np.argsort(h)
-        steps = np.diff(h[order])
+        # The gap below the top: the few points above it (``top_rank``) are flying pixels
+        # or pieces of a cap, not where the gap is.
+        steps = np.diff(h[order][: int(np.searchsorted(h[order], top, side="right"))])
         if len(steps) == 0:
             return None
         k = int(np.argmax(steps))
