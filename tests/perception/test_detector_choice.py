@@ -17,7 +17,11 @@ import pytest
 from armvision.config import Config, PerceptionConfig, load_config
 from armvision.errors import ConfigError, PerceptionError
 from armvision.geometry import inv_T
-from armvision.perception.detection import FrameContext, box_center_3d
+from armvision.perception.detection import (
+    FrameContext,
+    box_on_table,
+    cylinder_box,
+)
 from armvision.perception.factory import describe_detector, object_detector
 from armvision.perception.geometric import GeometricDetector
 from armvision.perception.hybrid import HybridDetector
@@ -166,7 +170,8 @@ def test_hybrid_names_with_the_network_and_places_with_the_geometric_fit(
 ) -> None:
     """The boxed bottle and cup carry the network's label and score and the geometric
     centre (a few mm from the truth); the unboxed bottles are "other"; a box over bare table
-    (no fit) keeps the network's label and a centre from the depth in the box."""
+    (no fit) keeps the network's label and is the cylinder standing on the table the
+    geometric detector found whose box it is."""
     frame, context, geometric, truth = scene
     net_boxes, middle, cup = boxes
     empty_table = (560.0, 380.0, 600.0, 420.0)
@@ -184,9 +189,19 @@ def test_hybrid_names_with_the_network_and_places_with_the_geometric_fit(
     phantom = found[2]
     assert phantom.label == "cup" and phantom.score == pytest.approx(0.66)
     assert phantom.box == pytest.approx(empty_table, abs=0.01)
-    expected = box_center_3d(frame.intrinsics, frame.depth, phantom.box)
+    plane = detector.geometric.last_plane
+    expected = box_on_table(frame.intrinsics, phantom.box, *plane)
     assert expected is not None
     np.testing.assert_allclose(phantom.center_cam, expected[0])
+    foot = phantom.center_cam - 0.5 * phantom.height * plane[0]
+    assert abs(float(plane[0] @ foot) + plane[1]) < 1e-9  # standing on the table
+    np.testing.assert_allclose(
+        cylinder_box(
+            frame.intrinsics, phantom.center_cam, plane[0], phantom.radius, phantom.height
+        ),
+        phantom.box,
+        atol=0.05,
+    )
     others = [d for d in found if d.label == "other"]
     unboxed = [d for d in geometric if d is not middle and d is not cup]
     assert sorted(d.box for d in others) == sorted(d.box for d in unboxed)

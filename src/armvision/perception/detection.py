@@ -24,7 +24,8 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject
+from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
+from armvision.geometry import cross3
 
 Array = NDArray[np.float64]
 #: What a detection is: a bottle, a cup, or (:class:`~armvision.perception.hybrid.HybridDetector`
@@ -37,6 +38,10 @@ LABELS: tuple[Label, ...] = ("bottle", "cup")
 #: Prior share of a bottle's height taken by its body (below the shoulder); the simulated
 #: bottles' value. Measure your own bottles and pass it to the detector and the liquid meter.
 BOTTLE_BODY_FRACTION = 0.72
+#: The bottle model (the liquid meter's, and a network's bottle box placed on the table): a
+#: cylinder of the bottle's radius from the foot up to the body fraction of its height, then
+#: a neck and cap this fraction of the radius wide at the top.
+CAP_RADIUS_FRACTION = 0.47
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,11 +86,15 @@ class FrameContext:
 
     ``T_base_cam`` (4, 4): the camera's pose in the arm's base frame (the runtime's current
     estimate), None if unknown; ``joint_positions`` (rad): the arm's joints at capture, for
-    the self-mask, None for no self-mask of the moving links.
+    the self-mask, None for no self-mask of the moving links; ``table_plane``: the table
+    in the camera frame as (unit normal toward the camera, offset), ``normal . p + offset =
+    0``, when a detector has found it in this frame (the hybrid's geometric detector tells
+    the network's placement, :func:`box_on_table`), else None.
     """
 
     T_base_cam: Array | None = None
     joint_positions: Array | None = None
+    table_plane: tuple[Array, float] | None = None
 
 
 #: The context of a frame about which nothing is known (the detectors' default).
@@ -100,6 +109,143 @@ class ObjectDetector(Protocol):
 
 
 # --------------------------------------------------------------------------- 3-D from a box
+
+
+#: 24 directions around a cylinder's rim (cos, sin columns) for :func:`cylinder_box`.
+_RING_COS, _RING_SIN = (
+    f(np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False))[:, None] for f in (np.cos, np.sin)
+)
+
+
+def cylinder_box(
+    intr: Intrinsics, center_cam: Array, axis_cam: Array, radius: float, height: float
+) -> tuple[float, float, float, float]:
+    """Pixel box (x0, y0, x1, y1) of a vertical cylinder: its rims' projection, clipped."""
+    return _image_box(intr, _cylinder_rims(center_cam, axis_cam, radius, height))
+
+
+def _cylinder_rims(center_cam: Array, axis_cam: Array, radius: float, height: float) -> Array:
+    """Points (48, 3) around a cylinder's bottom and top rims, camera frame."""
+    e1 = cross3(axis_cam, [1.0, 0.0, 0.0])
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = cross3(axis_cam, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = cross3(axis_cam, e1)
+    ring = radius * (_RING_COS * e1 + _RING_SIN * e2)
+    return np.concatenate(
+        [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
+    )
+
+
+def _image_box(intr: Intrinsics, points_cam: Array) -> tuple[float, float, float, float]:
+    """Pixel box of the camera-frame points in front of the camera, clipped to the image;
+    all zeros when none is."""
+    uv = project(intr, points_cam[points_cam[:, 2] > 1e-3])
+    if len(uv) == 0:
+        return (0.0, 0.0, 0.0, 0.0)
+    # pixel_box, clipped: on scalars, at a fraction of np.clip's call on a 4-vector.
+    w, h = float(intr.width), float(intr.height)
+    lo, hi = uv.min(axis=0).tolist(), uv.max(axis=0).tolist()
+    return (
+        min(max(lo[0], 0.0), w),
+        min(max(lo[1], 0.0), h),
+        min(max(hi[0] + 1.0, 0.0), w),
+        min(max(hi[1] + 1.0, 0.0), h),
+    )
+
+
+def box_on_table(
+    intr: Intrinsics,
+    box: tuple[float, float, float, float],
+    normal: Array,
+    offset: float,
+    label: Label = "cup",
+    depth: NDArray[np.floating] | None = None,
+    radius_range: tuple[float, float] = (0.015, 0.07),
+    occluder_m: float = 0.03,
+) -> tuple[Array, float, float] | None:
+    """(center_cam, radius, height) of the upright container standing on the table
+    (``normal . p + offset = 0``, the normal toward the camera) whose projected box is
+    ``box``: a cylinder, or for a bottle the bottle model (its body to
+    :data:`BOTTLE_BODY_FRACTION` of the height, a cap :data:`CAP_RADIUS_FRACTION` as wide at
+    the top). From the pixels alone, so a clear container that returned no depth in its
+    box is placed as well as an opaque one. A first guess from the box's bottom-centre
+    ray on the table, its width at that range and its top row over the axis, then
+    Gauss-Newton on the foot (two coordinates on the table), radius and height with central
+    differences (the projected box is piecewise smooth in them); written here because it is
+    four parameters and four residuals, where a solver's setup would cost more than the
+    fit. None when the box's bottom row does not meet the table in front of the camera, a
+    box edge is on the image border (the container continues outside it: its box is not
+    its silhouette), its foot is hidden (with ``depth``: most of the pixels just under the
+    box's middle that return depth return it ``occluder_m`` or more nearer than the table
+    there: a nearer object, whose top edge is the box's bottom), or the fit leaves the
+    radius outside ``radius_range``."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    if x0 <= 1.0 or y0 <= 1.0 or x1 >= intr.width - 1.0 or y1 >= intr.height - 1.0:
+        return None
+    n = np.asarray(normal, dtype=float)
+    ray = deproject(intr, [[0.5 * (x0 + x1 - 1.0), y1 - 0.5]], [1.0])[0]
+    along = float(n @ ray)
+    if along >= -1e-6:
+        return None  # the bottom row looks above the horizon of the table
+    front = ray * (-offset / along)
+    if front[2] <= 0.0:
+        return None
+    if depth is not None:
+        row = min(int(y1) + 2, intr.height - 1)
+        cols = np.arange(int(x0 + 0.2 * (x1 - x0)), int(np.ceil(x1 - 0.2 * (x1 - x0))) + 1)
+        seen = np.asarray(depth[row, cols], dtype=float)
+        rays = deproject(intr, np.column_stack([cols, np.full(len(cols), row)]), np.ones(len(cols)))
+        down = rays @ n
+        table_z = np.where(down < -1e-6, -offset / np.minimum(down, -1e-6), np.inf) * rays[:, 2]
+        valid = seen > 0.0
+        if valid.any() and np.mean(seen[valid] < table_z[valid] - occluder_m) > 0.5:
+            return None
+    e1 = cross3(n, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = cross3(n, e1)
+    away = front - (front @ n) * n
+    away /= np.linalg.norm(away)
+    radius = 0.5 * (x1 - x0) * float(front[2]) / intr.fx
+    foot = front + radius * away
+    top_ray = deproject(intr, [[0.5 * (x0 + x1 - 1.0), y0 + 0.5]], [1.0])[0]
+    # The top row's ray at the axis' distance along the view: its height above the table.
+    t = float(foot @ away) / max(float(top_ray @ away), 1e-9)
+    height = max(float(n @ (t * top_ray)) + offset, 0.02)
+    target = np.array([x0, y0, x1, y1])
+
+    body, cap = (BOTTLE_BODY_FRACTION, CAP_RADIUS_FRACTION) if label == "bottle" else (1.0, 1.0)
+    ring = _RING_COS * e1 + _RING_SIN * e2
+
+    def boxes(params: Array) -> Array:
+        # Unclipped: a trial container reaching past the border must still move its box.
+        out = []
+        for a, b, r, h in params:
+            base = foot + a * e1 + b * e2
+            outline = np.concatenate(
+                [base + r * ring, base + body * h * n + r * ring, base + h * n + cap * r * ring]
+            )
+            uv = project(intr, outline)
+            lo, hi = uv.min(axis=0), uv.max(axis=0)
+            out.append([lo[0], lo[1], hi[0] + 1.0, hi[1] + 1.0])
+        return np.array(out)
+
+    p = np.array([0.0, 0.0, radius, height])
+    eps = 1e-4
+    steps = np.vstack([np.zeros(4), eps * np.eye(4), -eps * np.eye(4)])
+    for _ in range(10):
+        found = boxes(p + steps)
+        res = found[0] - target
+        jac = (found[1:5] - found[5:9]).T / (2.0 * eps)
+        delta = np.linalg.lstsq(jac, -res, rcond=None)[0]
+        p += np.clip(delta, -0.05, 0.05)
+        p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
+        if float(np.max(np.abs(delta))) < 1e-5:
+            break
+    a, b, r, h = (float(v) for v in p)
+    if not radius_range[0] <= r <= radius_range[1]:
+        return None
+    return foot + a * e1 + b * e2 + 0.5 * h * n, r, h
 
 
 def box_center_3d(
@@ -147,8 +293,12 @@ def detections_from_boxes(
     labels: Sequence[Label],
     center_fraction: float,
     depth_percentile: float,
+    table_plane: tuple[Array, float] | None = None,
 ) -> list[Detection]:
-    """Detections for pixel boxes (N, 4) x0, y0, x1, y1; boxes without depth are dropped."""
+    """Detections for pixel boxes (N, 4) x0, y0, x1, y1. With the ``table_plane`` each is
+    the cylinder standing on it whose box it is (:func:`box_on_table`), whatever the depth
+    in it; otherwise, or where that fit fails, from the depth in the box
+    (:func:`box_center_3d`), and boxes without depth are dropped."""
     intr = frame.intrinsics
     out = []
     for box, score, label in zip(boxes, scores, labels):
@@ -157,9 +307,15 @@ def detections_from_boxes(
         y0, y1 = float(np.clip(y0, 0, intr.height)), float(np.clip(y1, 0, intr.height))
         if x1 - x0 < 1.0 or y1 - y0 < 1.0:
             continue
-        located = box_center_3d(
-            intr, frame.depth, (x0, y0, x1, y1), center_fraction, depth_percentile
-        )
+        located, axis = None, None
+        if table_plane is not None:
+            located = box_on_table(intr, (x0, y0, x1, y1), *table_plane, label, frame.depth)
+            axis = np.asarray(table_plane[0], dtype=float)
+        if located is None:
+            axis = None
+            located = box_center_3d(
+                intr, frame.depth, (x0, y0, x1, y1), center_fraction, depth_percentile
+            )
         if located is None:
             continue
         center_cam, radius, height = located
@@ -172,6 +328,7 @@ def detections_from_boxes(
                 size=np.array([2.0 * radius, height, 2.0 * radius]),
                 radius=radius,
                 height=height,
+                axis_cam=axis,
             )
         )
     return out

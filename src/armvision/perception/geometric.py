@@ -43,6 +43,8 @@ from armvision.perception.detection import (
     Detection,
     FrameContext,
     Label,
+    _image_box,
+    cylinder_box,
 )
 from armvision.perception.fitting import (
     fit_circle_kasa,
@@ -101,31 +103,11 @@ class _Cluster(NamedTuple):
     fitted: bool
 
 
-#: 24 directions around a cylinder's rim (cos, sin columns) for :func:`cylinder_box`.
-_RING_COS, _RING_SIN = (
-    f(np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False))[:, None] for f in (np.cos, np.sin)
-)
 #: :meth:`GeometricDetector._see_through`'s samples across the front (x the radius) and up
 #: it (x the height), made once: np.linspace costs more per call than the rest of a row.
 _SEE_ACROSS = np.linspace(-0.6, 0.6, 7)
 _SEE_UP = np.linspace(0.15, 0.85, 8)
 _CLEAR_MARGIN = 0.01  # m: a clear object blanks lines of sight this far beside its fitted circle
-
-
-def cylinder_box(
-    intr: Intrinsics, center_cam: Array, axis_cam: Array, radius: float, height: float
-) -> tuple[float, float, float, float]:
-    """Pixel box (x0, y0, x1, y1) of a vertical cylinder: its rims' projection, clipped."""
-    e1 = cross3(axis_cam, [1.0, 0.0, 0.0])
-    if np.linalg.norm(e1) < 1e-6:
-        e1 = cross3(axis_cam, [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = cross3(axis_cam, e1)
-    ring = radius * (_RING_COS * e1 + _RING_SIN * e2)
-    rims = np.concatenate(
-        [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
-    )
-    return _image_box(intr, rims)
 
 
 def bottle_box(
@@ -138,23 +120,6 @@ def bottle_box(
     the meter fits its model to."""
     outline = bottle_outline(foot_cam, axis_cam, radius, height, BOTTLE_BODY_FRACTION)
     return _image_box(intr, outline)
-
-
-def _image_box(intr: Intrinsics, points_cam: Array) -> tuple[float, float, float, float]:
-    """Pixel box of the camera-frame points in front of the camera, clipped to the image;
-    all zeros when none is."""
-    uv = project(intr, points_cam[points_cam[:, 2] > 1e-3])
-    if len(uv) == 0:
-        return (0.0, 0.0, 0.0, 0.0)
-    # pixel_box, clipped: on scalars, at a fraction of np.clip's call on a 4-vector.
-    w, h = float(intr.width), float(intr.height)
-    lo, hi = uv.min(axis=0).tolist(), uv.max(axis=0).tolist()
-    return (
-        min(max(lo[0], 0.0), w),
-        min(max(lo[1], 0.0), h),
-        min(max(hi[0] + 1.0, 0.0), w),
-        min(max(hi[1] + 1.0, 0.0), h),
-    )
 
 
 class GeometricDetector:
@@ -400,7 +365,8 @@ class GeometricDetector:
         self.pixel_stride = int(pixel_stride)
         self.max_fit_points = int(max_fit_points)
         self._rng = np.random.default_rng(seed)
-        #: The last frame's table plane n.p_cam + d = 0 (n toward the camera), for debugging.
+        #: The last frame's table plane n.p_cam + d = 0 (n toward the camera): the hybrid
+        #: detector hands it to the network's placement (FrameContext.table_plane).
         self.last_plane: tuple[Array, float] | None = None
         #: The frame being detected's camera pose and joint angles, for the self-filter of
         #: what is looked at beyond the strided cloud (:meth:`_cap_top`).

@@ -9,8 +9,13 @@ runs both on the same frame and context and pairs them:
   least ``min_iou`` (0.3), or else whose 3-D centre projects inside the box; each geometric
   detection goes to one box at most (best overlaps first). The pair is reported with the
   network's label and score and the geometric box, centre, size, radius, height and axis;
-- a network box no geometric detection fits is reported as the network gave it (its 3-D
-  centre from the depth in the box, :func:`~armvision.perception.detection.box_center_3d`);
+- a network box no geometric detection fits is reported as the network gave it. The
+  geometric detector runs first and tells the network the table plane it found
+  (``FrameContext.table_plane``), so such a box is the cylinder standing on the table whose
+  silhouette it is (:func:`~armvision.perception.detection.box_on_table`): a clear cup
+  that returned no depth is placed from its box alone. Without a plane (a geometric
+  detector that does not report one), from the depth in the box
+  (:func:`~armvision.perception.detection.box_center_3d`);
 - a geometric detection no box matched is reported with the label ``"other"`` (something
   stands there: the tasks do not pick it, but a grasp keeps clear of it).
 """
@@ -61,8 +66,11 @@ class HybridDetector:
 
     def detect(self, frame: RGBDFrame, context: FrameContext = NO_CONTEXT) -> list[Detection]:
         """The network's objects placed by the geometric fit, then the unnamed ones."""
-        named = self.network.detect(frame, context)
         fitted = self.geometric.detect(frame, context)
+        plane = getattr(self.geometric, "last_plane", None)
+        if plane is not None and context.table_plane is None:
+            context = dataclasses.replace(context, table_plane=plane)
+        named = self.network.detect(frame, context)
         pairs: list[tuple[float, int, int]] = []
         for i, net in enumerate(named):
             x0, y0, x1, y1 = net.box

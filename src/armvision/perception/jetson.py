@@ -73,8 +73,8 @@ class JetsonDetector:
         return self._net, self._to_cuda
 
     def detect(self, frame: RGBDFrame, context: FrameContext = NO_CONTEXT) -> list[Detection]:
-        """Bottles and cups in ``frame``: detectNet on the colour image, depth for 3-D; the
-        context is not needed."""
+        """Bottles and cups in ``frame``: detectNet on the colour image; for 3-D the
+        context's table plane when it has one, else the depth in each box."""
         net, to_cuda = self._load()
         color = np.ascontiguousarray(frame.color)
         h, w = color.shape[:2]
@@ -93,4 +93,5 @@ class JetsonDetector:
             [id_to_label[int(d.ClassID)] for d in picked],
             self.center_fraction,
             self.depth_percentile,
+            context.table_plane,
         )

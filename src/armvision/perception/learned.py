@@ -313,8 +313,8 @@ class OnnxDetector:
         return outputs[roles["box"]], outputs[roles["class"]], outputs[roles["score"]], num
 
     def detect(self, frame: RGBDFrame, context: FrameContext = NO_CONTEXT) -> list[Detection]:
-        """Bottles and cups in ``frame`` (colour for the network, depth for the 3-D centre);
-        the context is not needed."""
+        """Bottles and cups in ``frame`` (colour for the network; for the 3-D centre the
+        context's table plane when it has one, else the depth in each box)."""
         color = np.asarray(frame.color)
         h0, w0 = color.shape[:2]
         channels_first, (w_in, h_in) = self._input_layout()
@@ -353,4 +353,5 @@ class OnnxDetector:
             [labels[i] for i in keep],
             self.center_fraction,
             self.depth_percentile,
+            context.table_plane,
         )

@@ -94,7 +94,7 @@ from armvision.camera.frames import (
 )
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3
-from armvision.perception.detection import BOTTLE_BODY_FRACTION, Detection
+from armvision.perception.detection import BOTTLE_BODY_FRACTION, CAP_RADIUS_FRACTION, Detection
 from armvision.perception.fitting import fit_plane, percentile
 
 Array = NDArray[np.float64]
@@ -379,11 +379,6 @@ def _step_split(is_liquid: NDArray[np.bool_]) -> tuple[int, int]:
 
 
 # --------------------------------------------------------------------------- default: profile
-
-
-#: The meter's bottle model: a cylinder of the bottle's radius from the foot up to the body
-#: fraction of its height, then a neck and cap this fraction of the radius wide at the top.
-CAP_RADIUS_FRACTION = 0.47
 
 
 def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
