@@ -7,12 +7,14 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
-from armvision.camera.frames import Intrinsics
+from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import load_config
 from armvision.eval.objects import _render, _true_objects
 from armvision.perception.detection import (
     NO_CONTEXT,
+    Detection,
     FrameContext,
     box_center_3d,
     box_on_table,
@@ -121,3 +123,56 @@ def test_the_hybrid_places_a_clear_cup_from_the_networks_box() -> None:
     assert abs(cups[0].radius - cup["radius"]) < 0.002
     from_depth = box_center_3d(frame.intrinsics, frame.depth, Network.box)
     assert from_depth is not None and np.linalg.norm(from_depth[0] - center) > 0.012  # 17 mm
+
+
+def test_the_hybrid_keeps_a_fit_of_the_whole_box_and_places_a_partial_one_by_the_box() -> None:
+    """Hand-made: a network box of a cup standing on the table, and a geometric detection
+    whose box covers either most of it (IoU 0.85: the fit is kept, the network's label on
+    it) or a corner of it (IoU 0.25, a clear cup's patch: the cup standing on the table
+    whose box it is, centred within 1 mm of the truth). The frame has no depth."""
+    normal, offset = _table(0.45, 35.0)
+    center = _cylinder(normal, offset, 0.05, 0.6, 0.035, 0.1)
+    box = cylinder_box(INTR, center, normal, 0.035, 0.1)
+    frame = RGBDFrame(
+        color=np.zeros((480, 640, 3), np.uint8),
+        depth=np.zeros((480, 640), np.float32),
+        intrinsics=INTR,
+        timestamp=0.0,
+        index=0,
+    )
+
+    class Network:
+        def detect(self, frame, context=NO_CONTEXT):
+            return detections_from_boxes(
+                frame, np.array([box]), np.array([0.8]), ["cup"], 0.3, 25.0, context.table_plane
+            )
+
+    class Geometric:
+        last_plane = (normal, offset)
+
+        def __init__(self, fit_box):
+            self.fit_box = fit_box
+
+        def detect(self, frame, context=NO_CONTEXT):
+            fit = Detection(
+                label="other",
+                score=0.5,
+                box=self.fit_box,
+                center_cam=center + np.array([0.01, 0.0, 0.02]),
+                size=np.array([0.04, 0.06, 0.04]),
+                radius=0.02,
+                height=0.06,
+                axis_cam=normal,
+            )
+            return [fit]
+
+    x0, y0, x1, y1 = box
+    w, h = x1 - x0, y1 - y0
+    most = (x0 + 0.04 * w, y0 + 0.04 * h, x1 - 0.04 * w, y1 - 0.04 * h)
+    corner = (x0, y0 + 0.5 * h, x0 + 0.5 * w, y1)
+    [kept] = HybridDetector(Network(), Geometric(most)).detect(frame)
+    assert kept.label == "cup" and kept.box == most and kept.radius == 0.02
+    [placed] = HybridDetector(Network(), Geometric(corner)).detect(frame)
+    assert placed.label == "cup" and placed.box == pytest.approx(box)
+    assert np.linalg.norm(placed.center_cam - center) < 1e-3
+    assert abs(placed.radius - 0.035) < 5e-4 and abs(placed.height - 0.1) < 1e-3
