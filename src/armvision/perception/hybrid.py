@@ -13,7 +13,7 @@ runs both on the same frame and context and pairs them:
   could be placed on the table (below): then the fit is of a part of the container (a
   clear one's patches), and the container standing on the table whose box it is is
   reported (with an oracle's boxes of what is seen, 3 px of noise, on 80 cluttered scenes:
-  clear cups 10.3 mm from their centre, median, against 12.0 mm with every fit kept; the
+  clear cups 10-11 mm from their centre, median, against 12.0 mm with every fit kept; the
   other containers unchanged);
 - a network box no geometric detection fits is reported as the network gave it. The
   geometric detector runs first and tells the network the table plane it found
