@@ -296,9 +296,10 @@ def detections_from_boxes(
     table_plane: tuple[Array, float] | None = None,
 ) -> list[Detection]:
     """Detections for pixel boxes (N, 4) x0, y0, x1, y1. With the ``table_plane`` each is
-    the cylinder standing on it whose box it is (:func:`box_on_table`), whatever the depth
-    in it; otherwise, or where that fit fails, from the depth in the box
-    (:func:`box_center_3d`), and boxes without depth are dropped."""
+    the container of its label standing on it whose box it is (:func:`box_on_table`),
+    whatever the depth in it, its axis the plane's normal; otherwise, or where that fit
+    fails, from the depth in the box (:func:`box_center_3d`, no axis), and boxes without
+    depth are dropped."""
     intr = frame.intrinsics
     out = []
     for box, score, label in zip(boxes, scores, labels):

@@ -17,9 +17,10 @@ runs both on the same frame and context and pairs them:
   other containers unchanged);
 - a network box no geometric detection fits is reported as the network gave it. The
   geometric detector runs first and tells the network the table plane it found
-  (``FrameContext.table_plane``), so such a box is the cylinder standing on the table whose
-  silhouette it is (:func:`~armvision.perception.detection.box_on_table`): a clear cup
-  that returned no depth is placed from its box alone. Without a plane (a geometric
+  (``FrameContext.table_plane``), so such a box is the container standing on the table
+  whose silhouette it is (:func:`~armvision.perception.detection.box_on_table`: a cylinder,
+  or the bottle model for a bottle): a clear cup that returned no depth is placed from its
+  box alone. Without a plane (a geometric
   detector that does not report one), from the depth in the box
   (:func:`~armvision.perception.detection.box_center_3d`);
 - a geometric detection no box matched is reported with the label ``"other"`` (something
