@@ -491,10 +491,9 @@ def test_a_clear_bottle_seen_as_its_cap_over_a_blank_body_is_a_bottle_a_sliver_i
     is 15 mm wide, and a tinted bottle with four pieces of its cap above its top (the gap
     under them is not the one that counts) show their cap and neck over a gap with a few
     liquid points under it and no round wall: other before, bottles now, centred on the
-    cap's axis. Scene 358: a
-    canister's sliver beside a nearer sports bottle lost its middle to the depth-edge
-    filter (a gap too, under a narrow top); the full-resolution depth there is its surface,
-    and it stays other."""
+    cap's axis. Scene 358: a canister's sliver beside a nearer sports bottle lost its middle
+    to the depth-edge filter (a gap too, under a narrow top); the full-resolution depth
+    there is its surface, and it stays other."""
     cases = (
         (34, "water_bottle"),
         (841, "water_bottle"),
