@@ -345,3 +345,21 @@ def test_info_says_which_detector_is_active(ssd_path, tmp_path) -> None:
     )
     status = check_object_detector(bad)
     assert not status.usable and "does not exist" in status.detail
+
+
+def test_eval_perception_measures_the_configured_detector(ssd_path) -> None:
+    """`armvision eval perception` measures the detector the configuration chooses: on seed 3
+    (three bottles and a cup) the hybrid with the test network, which boxes the middle bottle
+    and the cup, finds those two with their labels and reports the other bottles as other
+    (bottle recall 1/3, cup 1/1, nothing false); the geometric detector finds all four."""
+    from armvision.eval.objects import evaluate_objects
+
+    hybrid = load_config(None, ["perception.detector=hybrid", f"perception.model={ssd_path}"])
+    found = evaluate_objects(hybrid, [3], randomize_camera=False)["summary"]
+    assert found["detector"] == "hybrid"
+    assert found["object_recall_bottle"] == pytest.approx(1 / 3)
+    assert found["object_recall_cup"] == 1.0
+    assert found["object_false_positives"] == 0
+    geometric = evaluate_objects(load_config(None, []), [3], randomize_camera=False)["summary"]
+    assert geometric["detector"] == "geometric"
+    assert geometric["object_recall_bottle"] == 1.0 and geometric["object_recall_cup"] == 1.0

@@ -3,10 +3,12 @@
 For each seed the simulator builds a scene of 1-4 bottles and cups (``sim.min_objects`` ..
 ``sim.max_objects``) with the camera placed at random around the configured placement
 (``sim.randomize_camera``), the arm at its sleep pose (or ``arm_pose="home"``), and renders one
-noisy RGB-D frame. :class:`GeometricDetector` runs on it with the self-filter given the
-simulator's true ``T_base_cam`` and the arm's encoder readings (``SimArm.get_joint_positions``,
-bias and noise included): at this stage of the pipeline the calibration is not known, so the
-evaluation stands in the true camera pose for the calibration that will provide it.
+noisy RGB-D frame. :class:`GeometricDetector` runs on it (or the detector ``perception.detector``
+configures: a user's ONNX model, alone or in the hybrid, is measured the same way) with the
+self-filter given the simulator's true ``T_base_cam`` and the arm's encoder readings
+(``SimArm.get_joint_positions``, bias and noise included): at this stage of the pipeline the
+calibration is not known, so the evaluation stands in the true camera pose for the
+calibration that will provide it.
 
 Truth: an object's centre is the point on its axis half-way up, ``T_base_obj @ (0, 0, H/2)``,
 mapped into the camera frame with the true ``T_base_cam``. Detections are matched to objects by
@@ -48,6 +50,7 @@ from armvision.camera.frames import Intrinsics, project
 from armvision.config import Config
 from armvision.geometry import inv_T, transform_points
 from armvision.perception.detection import Detection, FrameContext
+from armvision.perception.factory import object_detector
 from armvision.perception.geometric import GeometricDetector
 
 Array = np.ndarray
@@ -345,11 +348,16 @@ def evaluate_objects(
     config = dataclasses.replace(
         config, sim=dataclasses.replace(config.sim, randomize_camera=randomize_camera)
     )
+    # The configured detector (a user's network, alone or in the hybrid), loaded once; the
+    # geometric one is made per scene with its seed, as the figures in the README were.
+    configured = (
+        None if config.perception.detector == "geometric" else object_detector(config.perception)
+    )
     per_scene: list[dict[str, Any]] = []
     counts = _Counts()
     for seed in seeds:
         frame, true_depth, truth, q_encoders = _render(config, seed, arm_pose)
-        detector = GeometricDetector(seed=seed, **(detector_kwargs or {}))
+        detector = configured or GeometricDetector(seed=seed, **(detector_kwargs or {}))
         context = FrameContext(T_base_cam=truth.T_base_cam, joint_positions=q_encoders)
         detections: list[Detection] = detector.detect(frame, context)
         objects = _true_objects(frame, true_depth, truth, min_visible_fraction)
@@ -364,4 +372,5 @@ def evaluate_objects(
                 "false_positives": scene_fp,
             }
         )
-    return {"summary": _summary(counts, len(seeds)), "per_scene": per_scene}
+    summary = {**_summary(counts, len(seeds)), "detector": config.perception.detector}
+    return {"summary": summary, "per_scene": per_scene}
