@@ -389,7 +389,8 @@ def test_with_the_detectors_boxes_clear_bottles_read_and_opaque_ones_unknown() -
 
 def test_bottle_outline_is_the_meter_model_and_pixel_box_bounds_it() -> None:
     from armvision.camera.frames import pixel_box
-    from armvision.perception.liquid import CAP_RADIUS_FRACTION, bottle_outline
+    from armvision.perception.detection import CAP_RADIUS_FRACTION
+    from armvision.perception.liquid import bottle_outline
 
     pts = bottle_outline([0.1, 0.2, 0.0], [0.0, 0.0, 1.0], 0.03, 0.2, 0.72)
     assert pts.shape == (72, 3)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
 from armvision.geometry import cross3
@@ -111,6 +111,24 @@ class ObjectDetector(Protocol):
 # --------------------------------------------------------------------------- 3-D from a box
 
 
+def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
+    """Two unit vectors (e1, e2) that span the plane normal to the unit vector ``up`` (e1
+    normal to the x axis too, or to the y axis when ``up`` is the x axis)."""
+    up = np.asarray(up, dtype=float)
+    e1 = cross3(up, [1.0, 0.0, 0.0])
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = cross3(up, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, cross3(up, e1)
+
+
+def outline_rings(body_fraction: float) -> tuple[Array, Array]:
+    """The bottle model's three rings (foot, shoulder, top): their heights as shares of the
+    bottle's height and their radii as shares of its radius (the cap
+    :data:`CAP_RADIUS_FRACTION` as wide as the body)."""
+    return np.array([0.0, body_fraction, 1.0]), np.array([1.0, 1.0, CAP_RADIUS_FRACTION])
+
+
 #: 24 directions around a cylinder's rim (cos, sin columns) for :func:`cylinder_box`.
 _RING_COS, _RING_SIN = (
     f(np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False))[:, None] for f in (np.cos, np.sin)
@@ -126,11 +144,7 @@ def cylinder_box(
 
 def _cylinder_rims(center_cam: Array, axis_cam: Array, radius: float, height: float) -> Array:
     """Points (48, 3) around a cylinder's bottom and top rims, camera frame."""
-    e1 = cross3(axis_cam, [1.0, 0.0, 0.0])
-    if np.linalg.norm(e1) < 1e-6:
-        e1 = cross3(axis_cam, [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = cross3(axis_cam, e1)
+    e1, e2 = plane_basis(axis_cam)
     ring = radius * (_RING_COS * e1 + _RING_SIN * e2)
     return np.concatenate(
         [center_cam + ring - 0.5 * height * axis_cam, center_cam + ring + 0.5 * height * axis_cam]
@@ -201,9 +215,7 @@ def box_on_table(
         valid = seen > 0.0
         if valid.any() and np.mean(seen[valid] < table_z[valid] - occluder_m) > 0.5:
             return None
-    e1 = cross3(n, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = cross3(n, e1)
+    e1, e2 = plane_basis(n)
     away = front - (front @ n) * n
     away /= np.linalg.norm(away)
     radius = 0.5 * (x1 - x0) * float(front[2]) / intr.fx
@@ -214,7 +226,13 @@ def box_on_table(
     height = max(float(n @ (t * top_ray)) + offset, 0.02)
     target = np.array([x0, y0, x1, y1])
 
-    body, cap = (BOTTLE_BODY_FRACTION, CAP_RADIUS_FRACTION) if label == "bottle" else (1.0, 1.0)
+    # The rings' heights and radii as shares of the container's: a cylinder's two rims, or
+    # the bottle model's foot, shoulder and cap.
+    if label == "bottle":
+        heights, widths = outline_rings(BOTTLE_BODY_FRACTION)
+    else:
+        heights, widths = np.array([0.0, 1.0]), np.ones(2)
+    frac, scale = heights[:, None, None], widths[:, None, None]
     ring = _RING_COS * e1 + _RING_SIN * e2
 
     def boxes(params: Array) -> Array:
@@ -222,10 +240,7 @@ def box_on_table(
         out = []
         for a, b, r, h in params:
             base = foot + a * e1 + b * e2
-            outline = np.concatenate(
-                [base + r * ring, base + body * h * n + r * ring, base + h * n + cap * r * ring]
-            )
-            uv = project(intr, outline)
+            uv = project(intr, (base + frac * h * n + scale * r * ring).reshape(-1, 3))
             lo, hi = uv.min(axis=0), uv.max(axis=0)
             out.append([lo[0], lo[1], hi[0] + 1.0, hi[1] + 1.0])
         return np.array(out)

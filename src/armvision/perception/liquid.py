@@ -94,7 +94,12 @@ from armvision.camera.frames import (
 )
 from armvision.errors import PerceptionError
 from armvision.geometry import cross3
-from armvision.perception.detection import BOTTLE_BODY_FRACTION, CAP_RADIUS_FRACTION, Detection
+from armvision.perception.detection import (
+    BOTTLE_BODY_FRACTION,
+    Detection,
+    outline_rings,
+    plane_basis,
+)
 from armvision.perception.fitting import fit_plane, percentile
 
 Array = NDArray[np.float64]
@@ -381,14 +386,6 @@ def _step_split(is_liquid: NDArray[np.bool_]) -> tuple[int, int]:
 # --------------------------------------------------------------------------- default: profile
 
 
-def plane_basis(up: ArrayLike) -> tuple[Array, Array]:
-    """Two unit vectors (e1, e2) that span the plane normal to the unit vector ``up``."""
-    up = np.asarray(up, dtype=float)
-    e1 = cross3(up, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    return e1, cross3(up, e1)
-
-
 #: cos and sin of :func:`unit_ring`'s default 24 angles, (24, 1): computed once.
 _RING_ANGLES = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
 _RING_COS, _RING_SIN = np.cos(_RING_ANGLES)[:, None], np.sin(_RING_ANGLES)[:, None]
@@ -428,15 +425,9 @@ def bottle_outline(
         return a[..., None, :, :] if a.ndim >= 2 else a
 
     # All three rings at once, (..., ring, point, xyz): foot + (frac h) up + (scale r) ring.
-    frac, scale = (a[:, None, None] for a in _outline_rings(body_fraction))
+    frac, scale = (a[:, None, None] for a in outline_rings(body_fraction))
     pts = ring_axis(foot) + (frac * ring_axis(height)) * up + (scale * ring_axis(radius)) * ring
     return pts.reshape(*pts.shape[:-3], -1, 3)
-
-
-def _outline_rings(body_fraction: float) -> tuple[Array, Array]:
-    """The heights of :func:`bottle_outline`'s three rings (foot, shoulder, top) as shares of
-    the bottle's height, and their radii as shares of its radius."""
-    return np.array([0.0, body_fraction, 1.0]), np.array([1.0, 1.0, CAP_RADIUS_FRACTION])
 
 
 @dataclass(frozen=True)
@@ -710,7 +701,7 @@ class LiquidLevelMeter:
         target = np.asarray(box, dtype=float)
         mask = np.array([free[0], free[0], free[1], free[2]])
         # bottle_outline's points, with the coordinate first: (xyz, M, ring, point).
-        frac, scale = (a[:, None] for a in _outline_rings(body_fraction))
+        frac, scale = (a[:, None] for a in outline_rings(body_fraction))
         foot3, e1_3, e2_3, up3 = (a[:, None, None, None] for a in (foot, e1, e2, up))
         ring3 = ring.T[:, None, None, :]
 
