@@ -855,7 +855,7 @@ class GeometricDetector:
         elif label == "bottle":
             # The full-resolution points near the axis above the top, read once for both.
             near = self._near_axis(frame, foot_cam, normal, offset, radius, top, self.max_height)
-            top = self._thin_top(frame, foot_cam, normal, offset, e1, e2, radius, top, near=near)
+            top = self._thin_top(near[1], top)
             top = self._cap_top(frame, foot_cam, normal, offset, radius, top, near=near)
         n_wall = int(wall.sum())
         fit_fraction = float((np.abs(res[wall]) < 2.5 * sigma).mean())
@@ -1600,29 +1600,16 @@ class GeometricDetector:
         return "cup"
 
     def _thin_top(
-        self,
-        frame: RGBDFrame,
-        foot_cam: Array,
-        normal: Array,
-        offset: float,
-        e1: Array,
-        e2: Array,
-        radius: float,
-        top: float,
-        reach: float = 0.04,
-        step: float = 0.006,
-        near: tuple[Array, Array] | None = None,
+        self, near_heights: Array, top: float, reach: float = 0.04, step: float = 0.006
     ) -> float:
         """A bottle's top with what is too thin for the strided, edge-filtered cloud: a
         nozzle or a cap loop (a few millimetres, one or two pixels wide, all depth edge).
-        Every full-resolution pixel in the window above the top within ``reach`` whose point
-        lies within 0.6 x the radius of the axis and above the top; the top climbs through
-        them while no step exceeds ``step``; its third highest point is the new top if that
-        is more than ``closed_top_tolerance`` higher, else the top is unchanged. ``near``:
-        :meth:`_near_axis`'s points from ``top`` up, when the caller has them."""
-        if near is None:
-            near = self._near_axis(frame, foot_cam, normal, offset, radius, top, top + reach)
-        heights = near[1][(near[1] > top) & (near[1] < top + reach)]
+        Of ``near_heights``, the heights of the full-resolution points within 0.6 x the
+        radius of the axis from ``top`` up (:meth:`_near_axis`), those above the top within
+        ``reach``; the top climbs through them while no step exceeds ``step``; its third
+        highest point is the new top if that is more than ``closed_top_tolerance`` higher,
+        else the top is unchanged."""
+        heights = near_heights[(near_heights > top) & (near_heights < top + reach)]
         heights = np.sort(heights)
         steps = np.diff(np.concatenate([[top], heights]))
         climb = int(np.argmax(steps > step)) if (steps > step).any() else len(heights)
