@@ -5,13 +5,19 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
+from armvision.camera.frames import Intrinsics, RGBDFrame
 from armvision.config import Config
 from armvision.eval.liquid import (
     CLUTTERED_DISTRACTORS,
+    _bottle_record,
     _by_family,
     _unknown_summary,
     liquid_scene,
+    random_bottle,
 )
+from armvision.perception.liquid import LiquidLevelMeter
 from armvision.sim.scene import BOTTLE_FAMILIES, footprint_gap, footprint_of
 
 
@@ -70,3 +76,29 @@ def test_per_family_and_unknown_figures() -> None:
     assert math.isnan(clear_only["opaque_unknown_rate"])
     assert math.isnan(clear_only["mae_pct_opaque"])
     assert math.isnan(_by_family(per_bottle[2:3])["wine_bottle"]["mae_pct"])
+
+
+def test_a_detector_box_at_the_image_border_is_recorded_as_unknown() -> None:
+    """The meter refuses a box that reaches the image border before it looks for the body's
+    top (the border is not the bottle's side), so its reading carries no body top. The record
+    says unknown, with no fill and no cue fills, and the figures count a clear bottle left
+    unmeasured. (A detector's box wider than the true one, at the border while the bottle
+    stood inside it, stopped `armvision eval liquid --boxes detector --seed 7002` with an
+    assertion.)"""
+    intr = Intrinsics(640, 480, 615.0, 615.0, 320.0, 240.0)
+    frame = RGBDFrame(
+        np.full((480, 640, 3), 128, np.uint8), np.full((480, 640), 0.8, np.float32), intr, 0.0, 0
+    )
+    box = (600.0, 100.0, 640.0, 300.0)
+    meter = LiquidLevelMeter("profile")
+    prof = meter.measure(frame, box)
+    hough = LiquidLevelMeter("hough").measure(frame, box)
+    assert prof.body_height_m is None and prof.unknown is not None
+    assert "right border" in prof.unknown
+    spec = random_bottle(np.random.default_rng(3), "object0")
+    record = _bottle_record(7002, spec, np.eye(4), 0.95, box, prof, hough, meter.base)
+    assert record["fill"] is None and record["error_pct"] is None
+    assert record["unknown"] == prof.unknown and record["body_height_m"] is None
+    assert record["fill_colour_cue"] is None and record["fill_depth_cue"] is None
+    unknown = _unknown_summary([record])
+    assert unknown["clear_bottles"] == 1 and unknown["clear_measured"] == 0

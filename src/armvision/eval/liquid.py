@@ -190,12 +190,14 @@ def _bottle_record(
 ) -> dict[str, Any]:
     """One measured bottle of ``per_bottle``: both methods' readings beside the truth, and
     what each cue of the default method alone would have said (same body top). ``fill`` and
-    ``error_pct`` are None when the default method answered unknown (``unknown`` says why)."""
+    ``error_pct`` are None when the default method answered unknown (``unknown`` says why);
+    so are the cues' fills when it found no body top (a detector's box reaching the image
+    border, which the meter refuses before looking for one)."""
     body = prof.body_height_m
-    assert body is not None  # the profile method always reports the body top
-    span = body - base
     cue_fill = {
-        cue: None if level is None else float(np.clip((level - base) / span, 0.0, 1.0))
+        cue: None
+        if level is None or body is None
+        else float(np.clip((level - base) / (body - base), 0.0, 1.0))
         for cue, level in (
             ("colour", prof.level_colour_m),
             ("depth", prof.level_depth_m),
