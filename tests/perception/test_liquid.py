@@ -103,9 +103,12 @@ def _render_bottle(
     body: float = 0.15,
     opaque: bool = False,
     occluder: bool = False,
+    wall: float = 0.002,
+    tint: float = 0.25,
 ):
     """A clear bottle (r 30 mm, body ``body`` m, neck to 200 mm, cap) 0.6 m in front of the
-    camera.
+    camera; its liquid stands ``wall`` inside the outer radius, and the wall tints what is
+    seen through it by ``tint``.
 
     Depth: table, liquid and cap (a clear wall returns none, as in MuJoCo). Colour: table,
     liquid shaded by its normal, the wall as a 25 % tint, a white cap. ``opaque``: the wall
@@ -119,7 +122,7 @@ def _render_bottle(
     d = (R_world_cam @ rays_cam.reshape(3, -1)).T
     o = p_world_cam
     cx, cy, r, height, base = 0.0, 0.6, 0.03, 0.20, 0.003
-    r_liq = r - 0.002
+    r_liq = r - wall
     liquid_top = base + fill * (body - base)
     lam_table = np.where(d[:, 2] < 0, -o[2] / d[:, 2], np.inf)
     lam_liq = (
@@ -154,8 +157,8 @@ def _render_bottle(
     if opaque:
         color[(lam == lam_wall) & np.isfinite(lam_wall)] = (225, 225, 220)
     else:
-        tint = np.isfinite(lam_wall) & (lam_wall <= lam)
-        color[tint] = 0.75 * color[tint] + 0.25 * np.array([215, 235, 255])
+        seen = np.isfinite(lam_wall) & (lam_wall <= lam)
+        color[seen] = (1.0 - tint) * color[seen] + tint * np.array([215, 235, 255])
     color[(lam == lam_box) & np.isfinite(lam_box)] = (90, 90, 95)
     z = (lam[:, None] * d) @ R_world_cam[:, 2]  # depth along the optical axis
     depth = np.where(np.isfinite(lam), z, 0.0).reshape(480, 640).astype(np.float32)
@@ -192,6 +195,20 @@ def test_profile_reads_a_ray_cast_bottle(fill: float, body: float) -> None:
         top = 0.003 + fill * (body - 0.003)
         row = project(INTR, (np.array([0.0, 0.6, top]) - p_world_cam) @ R_world_cam)[0, 1]
         assert level.level_row is not None and abs(level.level_row - row) <= 2.0
+
+
+@pytest.mark.parametrize("fill", [0.6, 0.9])
+def test_behind_thick_glass_the_liquids_edge_shows_the_body(fill: float) -> None:
+    """Glass 4.5 mm thick (a wine bottle's is 3-4 mm): below the level the liquid's edge
+    stands 4.5 mm inside the wall, further in than the shoulder band reaches, and it is the
+    stronger step there. No side counted, so the body was the 72 % prior (144 mm for a
+    120 mm body) and the fill 11-16 points low. The liquid's edge now counts a side when
+    the wall's own silhouette shows above the liquid: the body top within 5 mm, the fill
+    within 5 points."""
+    frame, box, true_fill = _render_bottle(fill, body=0.12, wall=0.0045)
+    level = LiquidLevelMeter().measure(frame, box)
+    assert level.body_height_m is not None and abs(level.body_height_m - 0.12) <= 0.005, level
+    assert level.fill is not None and abs(level.fill - true_fill) <= 0.05, level
 
 
 def test_an_opaque_bottle_is_unknown() -> None:

@@ -78,6 +78,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal, TypeVar
 
@@ -506,8 +507,10 @@ class LiquidLevelMeter:
     itself, m; ``surface_tol``, slack of "on the bottle" beyond the radius, m.
     Shoulder (:meth:`_body_top`): ``edge_threshold``, RGB distance by which the silhouette
     step must beat the background's; ``edge_band_in`` / ``edge_band_out``, the band around
-    the radius where it is looked for, m; ``gap_m``, a stretch this long without a step ends
-    the body; ``min_body_fraction``, the body is at least this share of the height; ``cap_m``,
+    the radius where it is looked for, m; ``liquid_edge_in``, how far inside the wall the
+    liquid's edge may show instead (a glass wall's thickness and the liquid's gap to it:
+    3.5 mm on the simulated wine bottles), m; ``gap_m``, a stretch this long without a step
+    ends the body; ``min_body_fraction``, the body is at least this share of the height; ``cap_m``,
     a depth level within this of the top means no ray passed the bottle (a cap and what
     stands on it are shorter), m. Unknown (:meth:`_why_unseen`): ``opaque_share``, the share
     of the body's and the neck's rays ending on the bottle that makes a wall opaque;
@@ -536,6 +539,7 @@ class LiquidLevelMeter:
         occluder_m: float = 0.015,
         wall_band: float = 0.003,
         edge_band_in: float = 0.0035,
+        liquid_edge_in: float = 0.006,
         edge_band_out: float = 0.004,
         gap_m: float = 0.006,
         min_body_fraction: float = 0.3,
@@ -557,6 +561,7 @@ class LiquidLevelMeter:
         self.min_body_fraction, self.cap_m = min_body_fraction, cap_m
         self.max_misfit = max_misfit
         self.edge_band_in, self.edge_band_out = edge_band_in, edge_band_out
+        self.liquid_edge_in = liquid_edge_in
         self._rng = np.random.default_rng(seed)
         # The last table normal's plane basis and unit ring: every bottle on one table (all
         # of a frame's, from one detector) and both box fits of a bottle share them.
@@ -785,11 +790,18 @@ class LiquidLevelMeter:
         background of its own colour shows none), and a row is body where every counted side
         shows it: background edges rarely line up on both sides at the bottle's radius. The
         body top is the best single step from body rows (below) to the rest
-        (:func:`_step_split`) between 8 mm above the table and 10 mm below the top. Returns
-        (height, found); with no side showing the wall, ``body_fraction`` of the height, a
-        prior, and found False. ``search_wall`` (a detector's geometry): the band is centred on
-        each side's wall as :meth:`_wall_offsets` finds it in the empty body just above
-        ``empty_from`` (the first depth level), else in the lowest third.
+        (:func:`_step_split`) between 8 mm above the table and 10 mm below the top. Behind
+        thick glass the liquid's edge stands further in than the band reaches (3.5 mm on the
+        simulated wine bottles) and is the stronger step in the lowest third, so no side
+        counted and the body took the prior, 2-3 cm too high on a wine bottle. Then a side
+        counts if the wall's or the liquid's edge (down to ``liquid_edge_in`` inside the wall)
+        shows on 40 % of the lowest third, provided :meth:`_wall_offsets` sees the wall's own
+        silhouette in the empty body and the body rows found above the floor span ``gap_m``:
+        a faint wall showing only its liquid would end the body at the liquid's surface.
+        Returns (height, found); with no side showing the wall, ``body_fraction`` of the
+        height, a prior, and found False. ``search_wall`` (a detector's geometry): the band is
+        centred on each side's wall as :meth:`_wall_offsets` finds it in the empty body just
+        above ``empty_from`` (the first depth level), else in the lowest third.
         """
         r = bf.radius
         start = int(s.searchsorted(self.base + 0.005))
@@ -798,19 +810,21 @@ class LiquidLevelMeter:
             return self.body_fraction * bf.top, False
         lowest = slice(start, start + (stop - start) // 3)
         first = max(int(s.searchsorted(floor)), start)
-        walls = (r, r)
+        # Where the wall's silhouette shows alone: the empty body above the first depth
+        # level (below it the liquid's own edge, a wall's thickness inside, is the
+        # stronger), at most 4 cm of it and below 55 % of the height (no shoulder yet);
+        # a bottle full to there: the lowest third.
+        wall_rows = s[lowest][::2]
+        if empty_from is not None:
+            top_row = min(empty_from + 0.04, 0.55 * bf.top)
+            upper = s[(s > empty_from + 0.005) & (s < top_row)][::2]
+            if len(upper) >= 8:
+                wall_rows = upper
+        walls: tuple[float, float] = (r, r)
+        wall_seen: bool | None = None  # whether the wall shows there; asked when needed
         if search_wall:
-            # Where the wall's silhouette shows alone: the empty body above the first depth
-            # level (below it the liquid's own edge, a wall's thickness inside, is the
-            # stronger), at most 4 cm of it and below 55 % of the height (no shoulder yet);
-            # a bottle full to there: the lowest third.
-            rows = s[lowest][::2]
-            if empty_from is not None:
-                top_row = min(empty_from + 0.04, 0.55 * bf.top)
-                upper = s[(s > empty_from + 0.005) & (s < top_row)][::2]
-                if len(upper) >= 8:
-                    rows = upper
-            walls = self._wall_offsets(frame, bf, rows)
+            seen = self._wall_offsets(frame, bf, wall_rows)
+            walls, wall_seen = seen or walls, seen is not None
         # The strip at 0.5 mm steps, sampled where it matters only: on each side the band
         # around that side's wall and 1 mm beyond it, and the background 1.2-1.5 times as far.
         grid = np.arange(-1.5 * r, 2.0 * r, 0.0005)  # the phase of the validated sampling
@@ -840,9 +854,7 @@ class LiquidLevelMeter:
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
         edges = _rgb_length(strip[:, 1:] - strip[:, :-1])
-        body_row = np.ones(len(used) - n_low, bool)  # rows first..stop
-        faint = np.zeros(len(used) - n_low)  # the strongest in-band step of the counted sides
-        counted = 0
+        strengths, backgrounds, counted = [], [], []
         for side in (0, 1):
             g_band, g_out = (edges[:, cuts[i] : cuts[i + 1] - 1] for i in (2 * side, 2 * side + 1))
             band_t, lo, hi = bands[side]
@@ -851,13 +863,25 @@ class LiquidLevelMeter:
             inside = (where[best] > lo) & (where[best] < hi)
             background = _median(g_out, axis=1)
             strength = np.where(inside, g_band.max(axis=1) - background, 0.0)
-            edged = strength > self.edge_threshold
-            if np.count_nonzero(edged[:n_low]) / n_low >= 0.4:
-                body_row &= edged[n_low:]
-                faint = np.maximum(faint, strength[n_low:])
-                counted += 1
-        if counted == 0:
+            strengths.append(strength)
+            backgrounds.append(background[:n_low])
+            if np.count_nonzero(strength[:n_low] > self.edge_threshold) / n_low >= 0.4:
+                counted.append(side)
+        deep_only = not counted
+        if deep_only:
+            if wall_seen is None:
+                wall_seen = self._wall_offsets(frame, bf, wall_rows) is not None
+            if wall_seen:
+                counted = self._liquid_edge_sides(
+                    frame, bf, searched[:n_low], k[:n_low], walls, backgrounds, within
+                )
+        if not counted:
             return self.body_fraction * bf.top, False
+        body_row = np.ones(len(used) - n_low, bool)  # rows first..stop
+        faint = np.zeros(len(used) - n_low)  # the strongest in-band step of the counted sides
+        for side in counted:
+            body_row &= strengths[side][n_low:] > self.edge_threshold
+            faint = np.maximum(faint, strengths[side][n_low:])
         # Above the body the band sees the background alone: the first gap_m stretch from
         # the floor up where two thirds of the rows show not even a faint step (below
         # edge_threshold / 2 on every counted side) ends the search; a faint clear wall in
@@ -873,7 +897,44 @@ class LiquidLevelMeter:
         if stop - first < 4:
             return float(s[min(first, len(s) - 1)]), True
         k_split, _ = _step_split(body_row[: stop - first])
+        if deep_only and np.count_nonzero(body_row[:k_split]) < w:
+            return self.body_fraction * bf.top, False
         return float(s[first + max(k_split - 1, 0)]), True
+
+    def _liquid_edge_sides(
+        self,
+        frame: RGBDFrame,
+        bf: _Frame3D,
+        rows: Array,
+        k: Array,
+        walls: tuple[float, float],
+        backgrounds: list[Array],
+        within: Callable[[float, float], Array],
+    ) -> list[int]:
+        """The sides (0 left, 1 right) whose strongest colour step in ``rows`` (the lowest
+        third; ``k`` their depression tangents, (rows, 1)) lies between ``liquid_edge_in``
+        inside the wall and ``edge_band_out`` beyond it and beats that row's background step
+        (``backgrounds``, per side) by ``edge_threshold`` on 40 % of the rows: the wall's
+        silhouette or, behind thick glass, the liquid's. ``within``: :meth:`_body_top`'s
+        grid between two offsets."""
+        r = bf.radius
+        runs = [
+            side * within(wall - self.liquid_edge_in - 0.001, wall + self.edge_band_out + 0.001)
+            for side, wall in zip((-1.0, 1.0), walls)
+        ]
+        t = np.concatenate(runs)
+        shift = k * np.sqrt(np.maximum(r**2 - t[None, :] ** 2, 0.0))
+        edges = _rgb_length(np.diff(self._strip(frame, bf, rows, t, shift), axis=1))
+        out, at = [], 0
+        for side, (run, wall) in enumerate(zip(runs, walls)):
+            g = edges[:, at : at + len(run) - 1]
+            at += len(run)
+            where = 0.5 * np.abs(run[1:] + run[:-1])[g.argmax(axis=1)]
+            shows = (where > wall - self.liquid_edge_in) & (where < wall + self.edge_band_out)
+            shows &= g.max(axis=1) - backgrounds[side] > self.edge_threshold
+            if np.count_nonzero(shows) / len(rows) >= 0.4:
+                out.append(side)
+        return out
 
     def _profile(
         self, frame: RGBDFrame, box: ArrayLike, geometry: ContainerGeometry
@@ -1120,7 +1181,7 @@ class LiquidLevelMeter:
             hits_liquid_cylinder=hit_liq,
         )
 
-    def _wall_offsets(self, frame: RGBDFrame, bf: _Frame3D, s: Array) -> tuple[float, float]:
+    def _wall_offsets(self, frame: RGBDFrame, bf: _Frame3D, s: Array) -> tuple[float, float] | None:
         """How far from the axis each side's wall shows in colour in rows ``s`` (left, right).
 
         The box gives the radius, but a detector's box of a clear bottle may be a few mm
@@ -1129,7 +1190,7 @@ class LiquidLevelMeter:
         1.5 times the radius, the outermost 0.5 mm column where a colour step beats the row's
         median step by ``edge_threshold`` in at least 40 % of the rows is the wall; a side
         with none takes the other side's (the bottle is round; a faint clear wall may show on
-        one side only), neither: the radius. Only for a caller's geometry (a detector's): a
+        one side only); None when neither shows one. Only for a caller's geometry (a detector's): a
         box projected from
         the bottle itself (the evaluation's) is not narrow, and a background edge persisting
         beside the bottle would only move the band off the wall.
@@ -1155,7 +1216,7 @@ class LiquidLevelMeter:
         # The bottle is round: a side whose faint wall shows no edge takes the other side's.
         left = right if left is None else left
         right = left if right is None else right
-        return (r, r) if left is None or right is None else (left, right)
+        return None if left is None or right is None else (left, right)
 
     def _wall_top(self, rays: _Rays, bf: _Frame3D) -> float:
         """How high the front wall returns depth at the body's radius: the 95th percentile
