@@ -795,9 +795,11 @@ class LiquidLevelMeter:
         simulated wine bottles) and is the stronger step in the lowest third, so no side
         counted and the body took the prior, 2-3 cm too high on a wine bottle. Then a side
         counts if the wall's or the liquid's edge (down to ``liquid_edge_in`` inside the wall)
-        shows on 40 % of the lowest third, provided :meth:`_wall_offsets` sees the wall's own
-        silhouette in the empty body and the body rows found above the floor span ``gap_m``:
-        a faint wall showing only its liquid would end the body at the liquid's surface.
+        shows on 40 % of the lowest third, provided :meth:`_wall_offsets` finds a silhouette
+        beside the body where the wall shows alone (the empty body above the first depth
+        level, else the lowest third) and the body rows found above the floor span
+        ``gap_m``: a faint wall showing only its liquid would end the body at the liquid's
+        surface.
         Returns (height, found); with no side showing the wall, ``body_fraction`` of the
         height, a prior, and found False. ``search_wall`` (a detector's geometry): the band is
         centred on each side's wall as :meth:`_wall_offsets` finds it in the empty body just
