@@ -799,9 +799,8 @@ class LiquidLevelMeter:
         beside the body where the wall shows alone (the empty body above the first depth
         level, else the lowest third) and the body rows found above the floor span
         ``gap_m``: a faint wall showing only its liquid would end the body at the liquid's
-        surface.
-        Returns (height, found); with no side showing the wall, ``body_fraction`` of the
-        height, a prior, and found False. ``search_wall`` (a detector's geometry): the band is
+        surface. Returns (height, found); with no side showing the wall, ``body_fraction`` of
+        the height, a prior, and found False. ``search_wall`` (a detector's geometry): the band is
         centred on each side's wall as :meth:`_wall_offsets` finds it in the empty body just
         above ``empty_from`` (the first depth level), else in the lowest third.
         """
@@ -856,7 +855,9 @@ class LiquidLevelMeter:
         # Colour edges across t between neighbouring columns, all runs at once (those
         # between the last column of one run and the first of the next are not used).
         edges = _rgb_length(strip[:, 1:] - strip[:, :-1])
-        strengths, backgrounds, counted = [], [], []
+        strengths: list[Array] = []
+        backgrounds: list[NDArray[np.floating]] = []  # the rows' background steps, lowest third
+        counted: list[int] = []  # the sides that show the wall in the lowest third
         for side in (0, 1):
             g_band, g_out = (edges[:, cuts[i] : cuts[i + 1] - 1] for i in (2 * side, 2 * side + 1))
             band_t, lo, hi = bands[side]
@@ -910,7 +911,7 @@ class LiquidLevelMeter:
         rows: Array,
         k: Array,
         walls: tuple[float, float],
-        backgrounds: list[Array],
+        backgrounds: list[NDArray[np.floating]],
         within: Callable[[float, float], Array],
     ) -> list[int]:
         """The sides (0 left, 1 right) whose strongest colour step in ``rows`` (the lowest
@@ -1192,10 +1193,11 @@ class LiquidLevelMeter:
         1.5 times the radius, the outermost 0.5 mm column where a colour step beats the row's
         median step by ``edge_threshold`` in at least 40 % of the rows is the wall; a side
         with none takes the other side's (the bottle is round; a faint clear wall may show on
-        one side only); None when neither shows one. Only for a caller's geometry (a detector's): a
-        box projected from
-        the bottle itself (the evaluation's) is not narrow, and a background edge persisting
-        beside the bottle would only move the band off the wall.
+        one side only); None when neither shows one. It places the band only for a caller's
+        geometry (a detector's): a box projected from the bottle itself (the evaluation's) is
+        not narrow, and a background edge persisting beside the bottle would only move the
+        band off the wall. Without one, :meth:`_body_top` asks it only whether a wall shows
+        at all, when no side showed one in the band.
         """
         r = bf.radius
         grid = np.arange(0.6 * r, 1.5 * r, 0.0005)
