@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import cv2
 import numpy as np
@@ -215,9 +215,14 @@ class GeometricDetector:
     joined at its foot by a lower object (a cup's far wall a centimetre in front), taken when
     that circle is a bottle's (radius up to ``upper_max_radius``). A tall cluster that the
     wide-top test calls other but that is no wider than ``hidden_neck_max_radius`` and is
-    only an upper part, its body hidden behind a nearer object (:meth:`_body_hidden`), is a
+    only an upper part, its body hidden behind a nearer object (:meth:`_axis_below`), is a
     bottle's neck and cap seen over that object (a can stack's top is a can's width): a
-    bottle, centred on its neck.
+    bottle, centred on its neck. One whose axis below shows what stands behind it, farther
+    than the axis by ``through_margin`` or more (on at least half the samples, all but one
+    of the rest hidden), stands on a body that returned no depth: a clear bottle's cap and neck, the
+    body empty (MuJoCo's plain render gives a clear wall no depth, and on a real D435 an
+    empty clear body can keep too few points to join its cap). A bottle about the cap's axis
+    with ``bottle_prior_radius``.
 
     ``score``  = (fraction of wall points within 2.5 sigma of the fitted surface, sigma being
     Intel's depth noise at that distance) x min(1, wall points / ``full_support_points``):
@@ -283,6 +288,7 @@ class GeometricDetector:
         hidden_neck_max_radius: float = 0.02,
         hidden_low_fraction: float = 0.4,
         hidden_margin: float = 0.06,
+        through_margin: float = 0.02,
         bottle_min_radius: float = 0.024,
         bottle_prior_radius: float = 0.030,
         fragment_min_points: int = 20,
@@ -314,6 +320,7 @@ class GeometricDetector:
         self.hidden_neck_max_radius = float(hidden_neck_max_radius)
         self.hidden_low_fraction = float(hidden_low_fraction)
         self.hidden_margin = float(hidden_margin)
+        self.through_margin = float(through_margin)
         self.bottle_min_radius = float(bottle_min_radius)
         self.bottle_prior_radius = float(bottle_prior_radius)
         self.fragment_min_points = int(fragment_min_points)
@@ -782,9 +789,14 @@ class GeometricDetector:
             label == "other"
             and top >= self.bottle_min_height
             and radius <= self.hidden_neck_max_radius
-            and self._body_hidden(frame, h, center, top, normal, offset, e1, e2)
         ):
-            label = "bottle"  # a bottle's neck and cap above a nearer object that hides it
+            below = self._axis_below(frame, h, center, top, normal, offset, e1, e2)
+            if below == "hidden":
+                label = "bottle"  # a bottle's neck and cap above a nearer object that hides it
+            elif below == "through":
+                # A cap over nothing the camera sees, with what stands behind in view through
+                # it: a clear bottle's cap and neck over a body that returned no depth.
+                label, circle = "bottle", (center, self.bottle_prior_radius, res, wall)
         unopened = None
         if label == "cup" and not self._shows_inside(uw, h, center, radius, rim):
             # What the top showed, kept for _clear_containers when the top quarter is as wide
@@ -1759,7 +1771,7 @@ class GeometricDetector:
         a = np.linspace(-1.0, 1.0, 5) * self.closed_top_inner * radius
         return np.array([(x, y) for x in a for y in a if math.hypot(x, y) <= a[-1] + 1e-12])
 
-    def _body_hidden(
+    def _axis_below(
         self,
         frame: RGBDFrame,
         h: Array,
@@ -1769,24 +1781,33 @@ class GeometricDetector:
         offset: float,
         e1: Array,
         e2: Array,
-    ) -> bool:
-        """Whether the cluster is only an object's upper part, its body hidden behind a nearer
-        object: its lowest points (5th percentile) above ``hidden_low_fraction`` of its top,
-        and at least 60 % of 6 samples on its axis between a tenth of its top and its lowest
-        points in the image with depth at least ``hidden_margin`` nearer than the axis (a body
-        seen would be at most its radius nearer; missing depth does not count)."""
+    ) -> Literal["hidden", "through"] | None:
+        """What the camera sees on the axis below a cluster that is only an object's upper
+        part (its lowest points, 5th percentile, above ``hidden_low_fraction`` of its top), at
+        6 samples between a tenth of its top and its lowest points, all in the image:
+        "hidden" when at least 60 % have depth ``hidden_margin`` or more nearer than the axis
+        (a body seen would be at most its radius nearer; missing depth does not count), the
+        body behind a nearer object; "through" when at least 3 have depth ``through_margin`` or
+        more beyond it (what stands behind, or the table) and at most one is neither beyond
+        nor hidden (missing depth counts as neither: it may be clear plastic in front), the
+        body there but returning no depth; else None."""
         low = percentile(h, 5.0)
         if low < self.hidden_low_fraction * top:
-            return False
+            return None
         heights = np.linspace(0.1 * top, 0.9 * low, 6)
         foot = center[0] * e1 + center[1] * e2 - offset * normal
         p_cam = foot + heights[:, None] * normal
         uv, ok = _in_image(frame.intrinsics, p_cam)
         if not ok.all():
-            return False
+            return None
         seen = _depth_at(frame, uv)
-        hidden = (seen > 0.0) & (seen < p_cam[:, 2] - self.hidden_margin)
-        return float(hidden.mean()) >= 0.6
+        hidden = int(np.count_nonzero((seen > 0.0) & (seen < p_cam[:, 2] - self.hidden_margin)))
+        if hidden >= 0.6 * len(seen):
+            return "hidden"
+        through = int(np.count_nonzero(seen > p_cam[:, 2] + self.through_margin))
+        if through >= 3 and hidden + through >= 5:
+            return "through"
+        return None
 
     def _handle(self, uw: Array, h: Array, center: Array, radius: float, top: float) -> bool:
         """Whether the cluster carries a handle on its side: in one 30-degree bearing sector
