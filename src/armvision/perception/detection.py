@@ -24,7 +24,7 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project
+from armvision.camera.frames import Intrinsics, RGBDFrame, deproject, project, project_xyz
 from armvision.geometry import cross3
 
 Array = NDArray[np.float64]
@@ -168,6 +168,72 @@ def _image_box(intr: Intrinsics, points_cam: Array) -> tuple[float, float, float
     )
 
 
+def fit_model_box(
+    intr: Intrinsics,
+    box: ArrayLike,
+    foot: Array,
+    up: Array,
+    e1: Array,
+    e2: Array,
+    ring: Array,
+    rings: tuple[Array, Array],
+    p: Array,
+    free: tuple[bool, bool, bool, bool] = (True, True, True, True),
+    steps: int = 8,
+) -> tuple[Array, float]:
+    """The parameters (a, b, radius, height) of an upright container standing at
+    ``foot + a e1 + b e2`` on the table (``up`` its normal, ``e1``, ``e2`` spanning it) whose
+    projected box (min u, min v, max u + 1, max v + 1, unclipped) matches ``box``, and the
+    largest difference left (pixels). The container is ``rings``' rings (heights and radii as
+    shares of its height and radius, :func:`outline_rings`) of the unit ``ring`` (points
+    (K, 3) in the table plane). Gauss-Newton from ``p`` on the ``free`` parameters, at most
+    ``steps`` steps each clipped to +-0.05, with central differences (the projected box is
+    piecewise smooth in them); written here because it is four parameters and four
+    residuals, where a solver's setup would cost more than the fit. Shared by
+    :func:`box_on_table` and the liquid meter's box fit."""
+    target = np.asarray(box, dtype=float)
+    p = np.array(p, dtype=float)
+    # The rings' points, with the coordinate first: (xyz, M, ring, point).
+    frac, scale = (a[:, None] for a in rings)
+    foot3, e1_3, e2_3, up3 = (a[:, None, None, None] for a in (foot, e1, e2, up))
+    ring3 = ring.T[:, None, None, :]
+
+    def bboxes(params: Array) -> Array:
+        """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection, as
+        :func:`~armvision.camera.frames.pixel_box` bounds them."""
+        a, b, r, h = params.T[:, :, None, None]
+        centre = foot3 + a * e1_3 + b * e2_3
+        x, y, z = centre + (frac * h) * up3 + (scale * r) * ring3
+        uv = np.stack(project_xyz(intr, x, y, z), axis=1).reshape(len(params), 2, -1)
+        return np.concatenate([uv.min(2), uv.max(2) + 1], axis=1)
+
+    eps = 1e-4
+    idx = np.flatnonzero(free)
+    # The box at p and at p +- eps along each free parameter: central differences.
+    trial = np.zeros((1 + 2 * len(idx), 4))
+    trial[1 + np.arange(len(idx)), idx] = eps
+    trial[1 + len(idx) + np.arange(len(idx)), idx] = -eps
+    converged = False
+    for iteration in range(steps + 1):  # the last box is the final p's
+        boxes = bboxes(p + trial)
+        res = boxes[0] - target
+        if converged or iteration == steps:
+            break
+        if len(idx) == 1:  # one parameter (a detector's radius): lstsq in closed form
+            j = (boxes[1] - boxes[2]) / (2 * eps)
+            jj = float(j @ j)
+            step = -float(j @ res) / jj if jj > 0.0 else 0.0
+            p[idx[0]] += min(max(step, -0.05), 0.05)
+            converged = abs(step) < 1e-5
+        else:
+            J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
+            delta = np.linalg.lstsq(J, -res, rcond=None)[0]
+            p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)  # np.clip, faster
+            converged = bool(np.max(np.abs(delta)) < 1e-5)
+        p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
+    return p, float(np.max(np.abs(res)))
+
+
 def box_on_table(
     intr: Intrinsics,
     box: tuple[float, float, float, float],
@@ -185,10 +251,8 @@ def box_on_table(
     the top). From the pixels alone, so a clear container that returned no depth in its
     box is placed as well as an opaque one. A first guess from the box's bottom-centre
     ray on the table, its width at that range and its top row over the axis, then
-    Gauss-Newton on the foot (two coordinates on the table), radius and height with central
-    differences (the projected box is piecewise smooth in them); written here because it is
-    four parameters and four residuals, where a solver's setup would cost more than the
-    fit. None when the box's bottom row does not meet the table in front of the camera, a
+    :func:`fit_model_box` on the foot (two coordinates on the table), radius and height.
+    None when the box's bottom row does not meet the table in front of the camera, a
     box edge is on the image border (the container continues outside it: its box is not
     its silhouette), its foot is hidden (with ``depth``: most of the pixels just under the
     box's middle that return depth return it ``occluder_m`` or more nearer than the table
@@ -224,39 +288,16 @@ def box_on_table(
     # The top row's ray at the axis' distance along the view: its height above the table.
     t = float(foot @ away) / max(float(top_ray @ away), 1e-9)
     height = max(float(n @ (t * top_ray)) + offset, 0.02)
-    target = np.array([x0, y0, x1, y1])
-
     # The rings' heights and radii as shares of the container's: a cylinder's two rims, or
     # the bottle model's foot, shoulder and cap.
     if label == "bottle":
-        heights, widths = outline_rings(BOTTLE_BODY_FRACTION)
+        rings = outline_rings(BOTTLE_BODY_FRACTION)
     else:
-        heights, widths = np.array([0.0, 1.0]), np.ones(2)
-    frac, scale = heights[:, None, None], widths[:, None, None]
+        rings = (np.array([0.0, 1.0]), np.ones(2))
     ring = _RING_COS * e1 + _RING_SIN * e2
-
-    def boxes(params: Array) -> Array:
-        # Unclipped: a trial container reaching past the border must still move its box.
-        out = []
-        for a, b, r, h in params:
-            base = foot + a * e1 + b * e2
-            uv = project(intr, (base + frac * h * n + scale * r * ring).reshape(-1, 3))
-            lo, hi = uv.min(axis=0), uv.max(axis=0)
-            out.append([lo[0], lo[1], hi[0] + 1.0, hi[1] + 1.0])
-        return np.array(out)
-
-    p = np.array([0.0, 0.0, radius, height])
-    eps = 1e-4
-    steps = np.vstack([np.zeros(4), eps * np.eye(4), -eps * np.eye(4)])
-    for _ in range(10):
-        found = boxes(p + steps)
-        res = found[0] - target
-        jac = (found[1:5] - found[5:9]).T / (2.0 * eps)
-        delta = np.linalg.lstsq(jac, -res, rcond=None)[0]
-        p += np.clip(delta, -0.05, 0.05)
-        p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
-        if float(np.max(np.abs(delta))) < 1e-5:
-            break
+    p, _ = fit_model_box(
+        intr, box, foot, n, e1, e2, ring, rings, np.array([0.0, 0.0, radius, height]), steps=10
+    )
     a, b, r, h = (float(v) for v in p)
     if not radius_range[0] <= r <= radius_range[1]:
         return None

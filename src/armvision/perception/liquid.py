@@ -98,6 +98,7 @@ from armvision.geometry import cross3
 from armvision.perception.detection import (
     BOTTLE_BODY_FRACTION,
     Detection,
+    fit_model_box,
     outline_rings,
     plane_basis,
 )
@@ -703,49 +704,18 @@ class LiquidLevelMeter:
         off the image centre, which widens the box beyond the bottle's own width.
         """
         e1, e2, ring = self._table_basis(up)
-        target = np.asarray(box, dtype=float)
-        mask = np.array([free[0], free[0], free[1], free[2]])
-        # bottle_outline's points, with the coordinate first: (xyz, M, ring, point).
-        frac, scale = (a[:, None] for a in outline_rings(body_fraction))
-        foot3, e1_3, e2_3, up3 = (a[:, None, None, None] for a in (foot, e1, e2, up))
-        ring3 = ring.T[:, None, None, :]
-
-        def bboxes(params: Array) -> Array:
-            """Projected boxes (M, 4) of M parameter sets (M, 4) in one projection, as
-            :func:`~armvision.camera.frames.pixel_box` bounds them."""
-            a, b, r, h = params.T[:, :, None, None]
-            centre = foot3 + a * e1_3 + b * e2_3
-            x, y, z = centre + (frac * h) * up3 + (scale * r) * ring3
-            uv = np.stack(project_xyz(intr, x, y, z), axis=1).reshape(len(params), 2, -1)
-            return np.concatenate([uv.min(2), uv.max(2) + 1], axis=1)
-
-        p = np.array([0.0, 0.0, radius, top])
-        eps = 1e-4
-        idx = mask.nonzero()[0]
-        # The box at p and at p +- eps along each free parameter: central differences.
-        steps = np.zeros((1 + 2 * len(idx), 4))
-        steps[1 + np.arange(len(idx)), idx] = eps
-        steps[1 + len(idx) + np.arange(len(idx)), idx] = -eps
-        converged = False
-        for iteration in range(9):  # at most 8 steps; the last box is the final p's
-            boxes = bboxes(p + steps)
-            res = boxes[0] - target
-            if converged or iteration == 8:
-                break
-            # A bad first guess must not overshoot: each step is clipped to +-0.05.
-            if len(idx) == 1:  # the radius alone (a detector's box): lstsq in closed form
-                j = (boxes[1] - boxes[2]) / (2 * eps)
-                jj = float(j @ j)
-                step = -float(j @ res) / jj if jj > 0.0 else 0.0
-                p[idx[0]] += min(max(step, -0.05), 0.05)
-                converged = abs(step) < 1e-5
-            else:
-                J = (boxes[1 : 1 + len(idx)] - boxes[1 + len(idx) :]).T / (2 * eps)
-                delta = np.linalg.lstsq(J, -res, rcond=None)[0]
-                p[idx] += np.minimum(np.maximum(delta, -0.05), 0.05)  # np.clip, faster
-                converged = bool(np.max(np.abs(delta)) < 1e-5)
-            p[2], p[3] = max(p[2], 0.005), max(p[3], 0.02)
-        misfit = float(np.max(np.abs(res)))
+        p, misfit = fit_model_box(
+            intr,
+            box,
+            foot,
+            up,
+            e1,
+            e2,
+            ring,
+            outline_rings(body_fraction),
+            np.array([0.0, 0.0, radius, top]),
+            (free[0], free[0], free[1], free[2]),
+        )
         return foot + p[0] * e1 + p[1] * e2, float(p[2]), float(p[3]), misfit
 
     def _strip(
