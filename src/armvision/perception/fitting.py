@@ -12,6 +12,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -31,6 +32,17 @@ def unit_depth_rays(intr: Intrinsics, stride: int) -> tuple[Array, NDArray[np.in
     rays.flags.writeable = False
     flat.flags.writeable = False
     return rays, flat
+
+
+@functools.lru_cache(maxsize=8)
+def unit_depth_ray_columns(intr: Intrinsics, stride: int) -> tuple[Array, Array]:
+    """The x and y columns of :func:`unit_depth_rays` (z is 1), each contiguous: products
+    with them cost about half a product with the (N, 3) rows; cached per intrinsics."""
+    rays = unit_depth_rays(intr, stride)[0]
+    x, y = np.ascontiguousarray(rays[:, 0]), np.ascontiguousarray(rays[:, 1])
+    x.flags.writeable = False
+    y.flags.writeable = False
+    return x, y
 
 
 # --------------------------------------------------------------------------- planes
@@ -179,33 +191,29 @@ def fit_circle_kasa(xy: Array) -> tuple[Array, float]:
 
     Centre (a, b), radius sqrt(c + a^2 + b^2). Exact for points on a circle, biased toward
     small radii on a short noisy arc, so use it to start :func:`fit_circle_geometric`.
-    Solved by its 3x3 normal equations about the points' mean (well conditioned there): a
-    tenth of ``np.linalg.lstsq``'s time on a few hundred points.
+    Solved by its 3x3 normal equations about the points' mean (well conditioned there).
+    Fewer than 3 distinct points: the mean, radius 0.
     """
-    mean = xy.mean(axis=0)
-    q = xy - mean
-    A = np.empty((len(q), 4))
-    A[:, :2] = 2.0 * q
-    A[:, 2] = 1.0
-    A[:, 3] = np.einsum("ij,ij->i", q, q)
-    normal = A[:, :3].T @ A
-    solved = solve3(normal[:, :3], normal[:, 3])
-    if solved is None:  # fewer than 3 distinct points: no circle; the mean, radius 0
-        return mean, 0.0
-    a, b, c = solved
-    return mean + np.array([a, b]), float(math.sqrt(max(c + a * a + b * b, 0.0)))
+    cx, cy, r = kasa_kernel(np.ascontiguousarray(xy, dtype=float), 1)
+    return np.array([cx, cy]), r
 
 
 def solve3(A: Array, b: Array) -> tuple[float, float, float] | None:
     """The solution of ``A x = b`` for a 3x3 symmetric positive semi-definite ``A`` (normal
     equations) by cofactors, or None when ``A`` is singular: its determinant below 1e-12 of
-    its diagonal's product (Hadamard's bound, so the test ignores each unknown's scale).
-    Written out: ``np.linalg.solve``'s call costs more than the arithmetic on a 3x3, and the
-    circle fits solve hundreds of them per frame."""
-    (a, b_, c), (d, e, f), (g, h, i) = A.tolist()
-    return _solve3(a, b_, c, d, e, f, g, h, i, *b.tolist())
+    its diagonal's product (Hadamard's bound, so the test ignores each unknown's scale)."""
+    (a, b_, c), (d, e, f), (g, h, i) = np.asarray(A, dtype=float).tolist()
+    ok, x, y, z = _solve3(a, b_, c, d, e, f, g, h, i, *np.asarray(b, dtype=float).tolist())
+    return (x, y, z) if ok else None
 
 
+# The circle fits below are compiled (Numba): a frame's fits are a few hundred points each,
+# where numpy's per-call overhead, not the arithmetic, set the cost (the batched numpy version
+# took 2.4 ms a cluttered frame, these 0.4). They release the interpreter's lock, so the tag
+# stage's thread runs meanwhile.
+
+
+@numba.njit(cache=True, nogil=True)
 def _solve3(
     a: float,
     b_: float,
@@ -219,17 +227,97 @@ def _solve3(
     x: float,
     y: float,
     z: float,
-) -> tuple[float, float, float] | None:
-    """:func:`solve3` on the matrix's entries, row by row, and the right-hand side's."""
+) -> tuple[bool, float, float, float]:
+    """:func:`solve3` on the matrix's entries, row by row, and the right-hand side's:
+    (solved, x0, x1, x2)."""
     c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * c0 + b_ * c1 + c * c2
     if not abs(det) > 1e-12 * abs(a * e * i):  # also a zero diagonal, or NaN
-        return None
+        return False, 0.0, 0.0, 0.0
     return (
+        True,
         (x * c0 + b_ * (z * f - y * i) + c * (y * h - z * e)) / det,
         (a * (y * i - z * f) + x * c1 + c * (z * d - y * g)) / det,
         (a * (e * z - h * y) + b_ * (g * y - d * z) + x * c2) / det,
     )
+
+
+@numba.njit(cache=True, nogil=True)
+def kasa_kernel(xy: Array, step: int) -> tuple[float, float, float]:
+    """:func:`fit_circle_kasa` of every ``step``-th point of ``xy`` (N >= 1, 2): (cx, cy, r)."""
+    n = 0
+    mx = my = 0.0
+    for k in range(0, len(xy), step):
+        mx += xy[k, 0]
+        my += xy[k, 1]
+        n += 1
+    mx /= n
+    my /= n
+    # The normal equations of A [a b c]^T = q.q, A = [2 qx, 2 qy, 1], q about the mean.
+    sxx = sxy = sx = syy = sy = s1 = sxz = syz = sz = 0.0
+    for k in range(0, len(xy), step):
+        ax = 2.0 * (xy[k, 0] - mx)
+        ay = 2.0 * (xy[k, 1] - my)
+        zz = 0.25 * (ax * ax + ay * ay)
+        sxx += ax * ax
+        sxy += ax * ay
+        sx += ax
+        syy += ay * ay
+        sy += ay
+        s1 += 1.0
+        sxz += ax * zz
+        syz += ay * zz
+        sz += zz
+    ok, a, b, c = _solve3(sxx, sxy, sx, sxy, syy, sy, sx, sy, s1, sxz, syz, sz)
+    if not ok:
+        return mx, my, 0.0
+    return mx + a, my + b, math.sqrt(max(c + a * a + b * b, 0.0))
+
+
+@numba.njit(cache=True, nogil=True)
+def gauss_newton_circle(
+    xy: Array,
+    idx: NDArray[np.int64],
+    cx: float,
+    cy: float,
+    r: float,
+    scale: float,
+    iterations: int,
+    tolerance: float,
+) -> tuple[float, float, float]:
+    """The geometric circle fit of :func:`fit_circle_geometric` on the points ``xy[idx]``
+    from (cx, cy, r): (cx, cy, r). Each iteration solves J^T W J step = -J^T W res, with
+    J = -[ux, uy, 1] (u the unit vector from the centre to the point) and Huber weights."""
+    for _ in range(iterations):
+        sxx = sxy = sxr = syy = syr = srr = bx = by = br = 0.0
+        for k in idx:
+            ux = xy[k, 0] - cx
+            uy = xy[k, 1] - cy
+            dist = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            res = dist - r
+            w = min(1.0, scale / max(abs(res), 1e-12))
+            ux /= dist
+            uy /= dist
+            wux = w * ux
+            wuy = w * uy
+            sxx += wux * ux
+            sxy += wux * uy
+            sxr += wux
+            syy += wuy * uy
+            syr += wuy
+            srr += w
+            bx += wux * res
+            by += wuy * res
+            br += w * res
+        ok, s0, s1, s2 = _solve3(sxx, sxy, sxr, sxy, syy, syr, sxr, syr, srr, bx, by, br)
+        if not ok:  # all points in one spot: keep where it is
+            break
+        cx += s0
+        cy += s1
+        r += s2
+        if max(abs(s0), abs(s1), abs(s2)) < tolerance:
+            break
+    return cx, cy, r
 
 
 def fit_circle_geometric(
@@ -270,83 +358,27 @@ def fit_circles_geometric(
     iterations: int = 15,
     tolerance: float = 1e-6,
 ) -> tuple[Array, Array]:
-    """:func:`fit_circle_geometric` of several circles at once: circle k fitted to the
-    points ``xy[bounds[k]:bounds[k + 1]]`` (each run non-empty) from ``centers[k]`` and
-    ``radii[k]`` with Huber scale ``scales[k]``; each stops on its own (its parameters
-    then stay), the loop when all have. Returns the centres (K, 2) and radii (K,).
-
-    Each iteration is two dozen numpy operations on all the points, whatever their number of
-    circles: a frame's clusters fitted together cost a fraction of one call each (the
-    calls' overhead, not the arithmetic, dominates at a few hundred points), and
-    scipy.optimize.least_squares costs more per call than that still. The operations write
-    into buffers allocated once, and the points of circles that have stopped are dropped
-    (a third of the work on a cluttered frame's fits); each circle's sums, and so its steps,
-    are those of the whole set's to the bit.
-    """
+    """:func:`fit_circle_geometric` of several circles: circle k fitted to the points
+    ``xy[bounds[k]:bounds[k + 1]]`` (each run non-empty) from ``centers[k]`` and
+    ``radii[k]`` with Huber scale ``scales[k]``, each stopping on its own. Returns the
+    centres (K, 2) and radii (K,). scipy.optimize.least_squares costs more per call than a
+    frame's fits together."""
+    xy = np.ascontiguousarray(xy, dtype=float)
     c = np.array(centers, dtype=float).reshape(-1, 2)
     r = np.array(radii, dtype=float).reshape(-1)
-    cx, cy = c[:, 0].copy(), c[:, 1].copy()
-    counts = np.diff(bounds)
-    starts = np.asarray(bounds[:-1])
-    which = np.repeat(np.arange(len(r)), counts)
-    scale = np.asarray(scales, dtype=float)[which]
-    # Coordinates and every per-point term as contiguous rows: strided columns of an
-    # (N, k) array cost several times as much per operation at these sizes.
-    x, y = np.ascontiguousarray(np.asarray(xy, dtype=float).T)
-    active = list(range(len(r)))
-    # Rows 0-8: the distinct sums of a circle's Gauss-Newton equations J^T W J step =
-    # -J^T W res, with J = -[ux, uy, 1] (u the unit vector from the centre to the point):
-    # the symmetric left side's 6 terms, then the right side's 3; summed over each run.
-    # Rows 9-13: scratch. Row 5 is the Huber weight w, rows 2 and 4 w ux and w uy.
-    buffer = np.empty((14, len(x)))
-    terms, ux, uy, dist, res, tmp = buffer[:9], *buffer[9:]
-    for _ in range(iterations):
-        np.subtract(x, cx[which], out=ux)
-        np.subtract(y, cy[which], out=uy)
-        np.multiply(ux, ux, out=dist)
-        np.multiply(uy, uy, out=tmp)
-        dist += tmp
-        np.sqrt(dist, out=dist)
-        np.maximum(dist, 1e-9, out=dist)
-        np.subtract(dist, r[which], out=res)
-        np.abs(res, out=tmp)
-        np.maximum(tmp, 1e-12, out=tmp)
-        np.divide(scale, tmp, out=tmp)
-        w, wux, wuy = terms[5], terms[2], terms[4]
-        np.minimum(1.0, tmp, out=w)
-        ux /= dist
-        uy /= dist
-        np.multiply(w, ux, out=wux)
-        np.multiply(w, uy, out=wuy)
-        np.multiply(wux, ux, out=terms[0])
-        np.multiply(wux, uy, out=terms[1])
-        np.multiply(wuy, uy, out=terms[3])
-        np.multiply(wux, res, out=terms[6])
-        np.multiply(wuy, res, out=terms[7])
-        np.multiply(w, res, out=terms[8])
-        sums = np.add.reduceat(terms, starts, axis=1).T.tolist()
-        still = []
-        for k, (xx, xy_, xr, yy, yr, rr, bx, by, br) in zip(active, sums):
-            step = _solve3(xx, xy_, xr, xy_, yy, yr, xr, yr, rr, bx, by, br)
-            if step is None:  # all points in one spot: keep the start
-                continue
-            cx[k] += step[0]
-            cy[k] += step[1]
-            r[k] += step[2]
-            if max(abs(step[0]), abs(step[1]), abs(step[2])) >= tolerance:
-                still.append(k)
-        if not still:
-            break
-        if len(still) < len(active):  # only the circles still moving: their runs, in order
-            keep = np.zeros(len(r), dtype=bool)
-            keep[still] = True
-            keep = keep[which]
-            x, y, which, scale = x[keep], y[keep], which[keep], scale[keep]
-            starts = np.concatenate([[0], np.cumsum(counts[still])[:-1]])
-            live = buffer[:, : len(x)]
-            terms, ux, uy, dist, res, tmp = live[:9], *live[9:]
-        active = still
-    return np.column_stack([cx, cy]), r
+    scales = np.asarray(scales, dtype=float).reshape(-1)
+    for k in range(len(r)):
+        c[k, 0], c[k, 1], r[k] = gauss_newton_circle(
+            xy,
+            np.arange(bounds[k], bounds[k + 1], dtype=np.int64),
+            float(c[k, 0]),
+            float(c[k, 1]),
+            float(r[k]),
+            float(scales[k]),
+            int(iterations),
+            float(tolerance),
+        )
+    return c, r
 
 
 def percentile(a: Array, q: float) -> float:

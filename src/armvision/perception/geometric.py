@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
 
 import cv2
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -47,10 +48,11 @@ from armvision.perception.detection import (
     cylinder_box,
 )
 from armvision.perception.fitting import (
-    fit_circle_kasa,
-    fit_circles_geometric,
     fit_plane,
+    gauss_newton_circle,
+    kasa_kernel,
     percentile,
+    unit_depth_ray_columns,
     unit_depth_rays,
 )
 from armvision.perception.liquid import bottle_outline
@@ -400,8 +402,15 @@ class GeometricDetector:
         in_range = (z > 0.0) & (z < self.max_range)
         normal, offset = self._table_plane(z, rays, in_range, T_base_cam)
         self.last_plane = (normal, offset)
-        # Height of every pixel above the table: n.(z ray) + d, without building the cloud.
-        h = z * (rays @ normal) + offset
+        # Height of every pixel above the table: n.(z ray) + d, without building the cloud
+        # (the rays' z is 1; in place on their contiguous columns).
+        ray_x, ray_y = unit_depth_ray_columns(intr, self.pixel_stride)
+        n_x, n_y, n_z = normal.tolist()
+        h = ray_x * n_x
+        h += ray_y * n_y
+        h += n_z
+        h *= z
+        h += offset
         candidate = in_range & (h > self.min_height) & (h < self.max_height)
         idx = np.flatnonzero(candidate)
         if self.edge_jump > 0.0:
@@ -1436,50 +1445,14 @@ class GeometricDetector:
         return self._wall_circles([uw], [sigma])[0]
 
     def _wall_circles(self, uws: Sequence[Array], sigmas: Sequence[float]) -> list[_Circle | None]:
-        """:meth:`_wall_circle` of several clusters (points ``uws``, depth noise ``sigmas``),
-        their geometric fits run together (:func:`fit_circles_geometric`)."""
-        n = len(uws)
-        centers, radii = np.empty((n, 2)), np.empty(n)
-        residuals: list[Array] = []
-        for k, uw in enumerate(uws):
-            # A few hundred points fix a circle to well under a millimetre; thousands cost
-            # time.
-            centers[k], radii[k] = fit_circle_kasa(uw[:: max(1, len(uw) // self.max_fit_points)])
-            residuals.append(_radial(uw, centers[k]) - radii[k])
-        # The camera is at (0, 0) in (u, w): keep the wall facing it, near the circle.
-        to_cam = -centers / np.maximum(np.linalg.norm(centers, axis=1), 1e-9)[:, None]
-        bands = np.maximum(4.0 * np.asarray(sigmas, dtype=float), 0.006)
-        scales = 2.0 * np.asarray(sigmas, dtype=float)
-        walls: list[NDArray[np.bool_]] = [np.zeros(0, dtype=bool)] * n
-        live = list(range(n))
-        for _ in range(2):
-            fits, kept = [], []
-            for k in live:
-                uw = uws[k]
-                wall = ((uw - centers[k]) @ to_cam[k] > 0.0) & (np.abs(residuals[k]) < bands[k])
-                count = int(wall.sum())
-                if count < 10:
-                    continue  # too thin a wall: no circle
-                walls[k] = wall
-                fits.append(uw[np.flatnonzero(wall)[:: max(1, count // self.max_fit_points)]])
-                kept.append(k)
-            live = kept
-            if not live:
-                break
-            centers[live], radii[live] = fit_circles_geometric(
-                np.concatenate(fits),
-                np.cumsum([0] + [len(f) for f in fits]),
-                centers[live],
-                radii[live],
-                scales[live],
-                iterations=self.fit_iterations,
-                tolerance=self.fit_tolerance,
+        """:meth:`_wall_circle` of several clusters (points ``uws``, depth noise ``sigmas``)."""
+        out: list[_Circle | None] = []
+        for uw, sigma in zip(uws, sigmas):
+            uw = np.ascontiguousarray(uw, dtype=float)
+            ok, cx, cy, radius, res, wall = _wall_circle_kernel(
+                uw, float(sigma), self.max_fit_points, self.fit_iterations, self.fit_tolerance
             )
-            for k in live:
-                residuals[k] = _radial(uws[k], centers[k]) - radii[k]
-        out: list[_Circle | None] = [None] * n
-        for k in live:
-            out[k] = (centers[k].copy(), float(radii[k]), residuals[k], walls[k])
+            out.append((np.array([cx, cy]), radius, res, wall) if ok else None)
         return out
 
     def _color_top(
@@ -2011,6 +1984,46 @@ def _seen_through(
         h_out = camera_height + t_out * (h - camera_height)
         hidden |= (miss2 <= r * r) & ok & (t_out > 0.0) & (h_out <= top)
     return hidden
+
+
+@numba.njit(cache=True, nogil=True)
+def _wall_circle_kernel(
+    uw: Array, sigma: float, max_fit_points: int, iterations: int, tolerance: float
+) -> tuple[bool, float, float, float, Array, NDArray[np.bool_]]:
+    """:meth:`GeometricDetector._wall_circle`, compiled (see :mod:`.fitting`): (found, cx,
+    cy, radius, residuals, wall). A Kåsa start on at most ``max_fit_points`` of the points
+    (a few hundred fix a circle to well under a millimetre), then twice: the wall is the
+    points facing the camera (at (0, 0) in (u, w), seen from the start's centre) within
+    max(4 sigma, 6 mm) of the circle, and the circle is fitted to at most
+    ``max_fit_points`` of them (Huber scale 2 sigma). No circle with fewer than 10 wall
+    points."""
+    n = len(uw)
+    cx, cy, r = kasa_kernel(uw, max(1, n // max_fit_points))
+    norm = max(math.hypot(cx, cy), 1e-9)
+    to_x, to_y = -cx / norm, -cy / norm
+    band, scale = max(4.0 * sigma, 0.006), 2.0 * sigma
+    res = np.empty(n)
+    for k in range(n):
+        res[k] = math.hypot(uw[k, 0] - cx, uw[k, 1] - cy) - r
+    wall = np.zeros(n, dtype=np.bool_)
+    idx = np.empty(n, dtype=np.int64)
+    for _ in range(2):
+        count = 0
+        for k in range(n):
+            facing = (uw[k, 0] - cx) * to_x + (uw[k, 1] - cy) * to_y > 0.0
+            wall[k] = facing and abs(res[k]) < band
+            if wall[k]:
+                idx[count] = k
+                count += 1
+        if count < 10:  # too thin a wall: no circle
+            return False, cx, cy, r, res, wall
+        cx, cy, r = gauss_newton_circle(
+            uw, idx[: count : max(1, count // max_fit_points)], cx, cy, r, scale, iterations,
+            tolerance,
+        )  # fmt: skip
+        for k in range(n):
+            res[k] = math.hypot(uw[k, 0] - cx, uw[k, 1] - cy) - r
+    return True, cx, cy, r, res, wall
 
 
 def _radial(uw: Array, center: Array) -> Array:
