@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from armvision.camera.frames import Intrinsics, RGBDFrame
+from armvision.errors import PerceptionError
 from armvision.geometry import cross3
 from armvision.perception.liquid import (
     _RAY_MISS,
     LiquidLevelMeter,
     _Frame3D,
-    _hypot_below,
     _median,
     _rgb_length,
     plane_basis,
@@ -61,21 +61,6 @@ def test_median_of_nothing_is_nan_as_numpys() -> None:
         assert np.isnan(_median(np.zeros((3, 0)), axis=1)).all()
 
 
-def test_hypot_below_is_numpys_hypot_exactly() -> None:
-    """Hand-worked: (3, 4) is 5 long, so below 5.000001 and not below 5; on random values,
-    ones placed at the limit to a few ulp and NaN, the same as ``np.hypot(a, b) < limit``."""
-    assert _hypot_below(np.array([3.0]), np.array([4.0]), 5.000001).tolist() == [True]
-    assert _hypot_below(np.array([3.0]), np.array([4.0]), 5.0).tolist() == [False]
-    rng = np.random.default_rng(3)
-    a, b = rng.normal(0.0, 0.03, 5000), rng.normal(0.0, 0.03, 5000)
-    limit = 0.035
-    angle = rng.uniform(0.0, 2.0 * np.pi, 500)
-    ulps = rng.integers(-4, 5, 500) * np.spacing(limit)
-    a[:500], b[:500] = (limit + ulps) * np.cos(angle), (limit + ulps) * np.sin(angle)
-    a[500] = np.nan
-    np.testing.assert_array_equal(_hypot_below(a, b, limit), np.hypot(a, b) < limit)
-
-
 def _upright_bottle() -> _Frame3D:
     """A bottle r 30 mm, 0.2 m tall, its foot 0.6 m ahead and 0.2 m below a camera pitched
     down 20 degrees; axes as the meter builds them."""
@@ -119,6 +104,86 @@ def test_rays_are_the_lines_of_sight_near_the_axis() -> None:
     assert len(rays.miss) == near.sum()
     np.testing.assert_allclose(rays.miss, miss[near], atol=1e-4)
     assert rays.valid.all()
+
+
+def _rays_numpy(meter, depth, box, bf, r_liq, stride):
+    """The rays' fields written as whole-array numpy over every pixel of the box (the
+    meter's own formulation before it was compiled), then the rays near the axis kept."""
+    x0, y0, x1, y1 = box
+    v, u = np.mgrid[y0:y1:stride, x0:x1:stride]
+    d = np.stack([(u - INTR.ppx) / INTR.fx, (v - INTR.ppy) / INTR.fy, np.ones(u.shape)], -1)
+    d = d.reshape(-1, 3)
+    da, dl, du = d @ bf.away, d @ bf.lateral, d @ bf.up
+    fa, fl, fu = bf.foot @ bf.away, bf.foot @ bf.lateral, bf.foot @ bf.up
+    z_near = (da * fa + dl * fl) / (da**2 + dl**2)
+    miss = np.hypot(z_near * da - fa, z_near * dl - fl) / bf.radius
+    z = depth[y0:y1:stride, x0:x1:stride].ravel().astype(float)
+
+    def chord(radius):  # the ray's depths where it crosses the cylinder of this radius
+        qa, qb = da**2 + dl**2, -2.0 * (da * fa + dl * fl)
+        disc = qb**2 - 4.0 * qa * (fa**2 + fl**2 - radius**2)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        return (-qb - root) / (2 * qa), (-qb + root) / (2 * qa), disc > 0
+
+    near_z, _, hit = chord(bf.radius)
+    front = np.where(hit, near_z, np.inf)
+    a, b, hit_liq = chord(r_liq)
+    s_low = np.where(hit_liq, np.maximum(np.minimum(a * du, b * du) - fu, meter.base), np.nan)
+    height = z * du - fu
+    valid = z > 0
+    on = (
+        valid
+        & (np.hypot(z * da - fa, z * dl - fl) < bf.radius + meter.surface_tol)
+        & (height > meter.base + 0.002)
+        & (height < bf.top + meter.surface_tol)
+    )
+    keep = miss < _RAY_MISS
+    fields = {
+        "s_low": s_low,
+        "height": height,
+        "s_axis": z_near * du - fu,
+        "miss": miss,
+        "valid": valid,
+        "on_bottle": on,
+        "before": valid & ~on & (z < front - meter.occluder_m),
+        "at_wall": on & (z < front + meter.wall_band),
+        "hits_liquid_cylinder": hit_liq,
+    }
+    return {name: value[keep] for name, value in fields.items()}
+
+
+def test_rays_say_what_each_depth_shows_as_whole_array_numpy_does() -> None:
+    """On a depth image with the table, the bottle's front wall, points in front of it and
+    holes, every field of the compiled rays equals the whole-array numpy formulation's
+    (floats to 1e-9 m, the flags exactly; none of the points within rounding of a limit)."""
+    bf = _upright_bottle()
+    meter = LiquidLevelMeter()
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.45, 0.9, (480, 640)).astype(np.float32)
+    depth[rng.random((480, 640)) < 0.1] = 0.0  # holes
+    frame = RGBDFrame(np.zeros((480, 640, 3), np.uint8), depth, INTR, 0.0, 0)
+    box = (250, 150, 400, 420)
+    for stride in (1, 2):
+        rays = meter._rays(frame, box, bf, 0.028, stride=stride)
+        want = _rays_numpy(meter, depth, box, bf, 0.028, stride)
+        assert want["on_bottle"].sum() > 20 and want["before"].sum() > 20
+        assert want["at_wall"].sum() > 5 and (~want["valid"]).sum() > 20
+        for name, value in want.items():
+            got = getattr(rays, name)
+            if value.dtype == bool:
+                np.testing.assert_array_equal(got, value, err_msg=name)
+            else:
+                np.testing.assert_allclose(got, value, rtol=0, atol=1e-9, err_msg=name)
+
+
+def test_rays_of_a_depth_image_not_aligned_to_colour_are_an_error() -> None:
+    """The rays index the depth image with the colour box: a depth image of another size is
+    refused with the fix, not read past its end."""
+    frame = RGBDFrame(
+        np.zeros((480, 640, 3), np.uint8), np.ones((240, 320), np.float32), INTR, 0.0, 0
+    )
+    with pytest.raises(PerceptionError, match="align depth to colour"):
+        LiquidLevelMeter()._rays(frame, (250, 150, 400, 420), _upright_bottle(), 0.028)
 
 
 def test_table_basis_is_kept_per_normal() -> None:

@@ -83,6 +83,7 @@ from dataclasses import dataclass, field
 from typing import Literal, TypeVar
 
 import cv2
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -234,20 +235,9 @@ def _rgb_length(d: NDArray[np.float32]) -> NDArray[np.float32]:
 
 
 #: Relative slack on squared distances that rounding cannot exceed (a^2 + b^2 is within a
-#: few ulp, ~1e-15, of the exact square of np.hypot's correctly rounded length).
+#: few ulp, ~1e-15, of the exact square of the correctly rounded hypot): a cheap superset test
+#: before the hypot.
 _SQ_SLACK = 1e-9
-
-
-def _hypot_below(a: Array, b: Array, limit: float) -> NDArray[np.bool_]:
-    """``np.hypot(a, b) < limit`` exactly, with np.hypot (slow: ~12 ns a value) only where
-    ``a^2 + b^2`` is too close to ``limit^2`` to tell; NaN gives False, as np.hypot's."""
-    sq = a * a + b * b
-    lim2 = limit * limit
-    below = sq < lim2
-    doubt = (np.abs(sq - lim2) <= lim2 * _SQ_SLACK).nonzero()[0]
-    if len(doubt):
-        below[doubt] = np.hypot(a[doubt], b[doubt]) < limit
-    return below
 
 
 def _median(a: NDArray[_F], axis: int) -> NDArray[_F]:
@@ -488,6 +478,106 @@ class _Rays:
     before: NDArray[np.bool_]
     at_wall: NDArray[np.bool_]
     hits_liquid_cylinder: NDArray[np.bool_]
+
+
+@numba.njit(cache=True, nogil=True)
+def _rays_kernel(
+    depth: NDArray[np.floating],
+    box: NDArray[np.int64],
+    stride: int,
+    camera: Array,
+    axes: Array,
+    sizes: Array,
+) -> tuple[
+    Array,
+    Array,
+    Array,
+    Array,
+    NDArray[np.bool_],
+    NDArray[np.bool_],
+    NDArray[np.bool_],
+    NDArray[np.bool_],
+    NDArray[np.bool_],
+]:
+    """:meth:`LiquidLevelMeter._rays`, compiled (a per-pixel loop; as numpy calls it was a
+    tenth of a cluttered frame's perception): the fields of :class:`_Rays`, in order.
+
+    ``box`` (x0, y0, x1, y1), ``camera`` (ppx, ppy, fx, fy), ``axes`` the rows away,
+    lateral, up and foot of the bottle's frame, ``sizes`` its radius, the liquid's radius,
+    its top, then the meter's base, surface_tol, occluder_m and wall_band. The ray (x, y, 1)
+    of a pixel has depth z as its parameter; its horizontal offset from the axis is
+    (z da - fa, z dl - fl), whose square is qa z^2 - 2 half_b z + c0."""
+    x0, y0, x1, y1 = box[0], box[1], box[2], box[3]
+    ppx, ppy, fx, fy = camera[0], camera[1], camera[2], camera[3]
+    radius, r_liq, top, base, surface_tol, occluder_m, wall_band = (
+        sizes[0], sizes[1], sizes[2], sizes[3], sizes[4], sizes[5], sizes[6]
+    )  # fmt: skip
+    fa = axes[3, 0] * axes[0, 0] + axes[3, 1] * axes[0, 1] + axes[3, 2] * axes[0, 2]
+    fl = axes[3, 0] * axes[1, 0] + axes[3, 1] * axes[1, 1] + axes[3, 2] * axes[1, 2]
+    fu = axes[3, 0] * axes[2, 0] + axes[3, 1] * axes[2, 1] + axes[3, 2] * axes[2, 2]
+    c0 = fa * fa + fl * fl
+    reach = _RAY_MISS * radius
+    rows = len(range(y0, y1, stride))
+    cols = len(range(x0, x1, stride))
+    n = rows * cols
+    s_low, height, s_axis, miss = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    valid, on_bottle = np.empty(n, np.bool_), np.empty(n, np.bool_)
+    before, at_wall, hit_liq = np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n, np.bool_)
+    radii2 = (radius * radius, r_liq * r_liq)
+    near_limit = radius + surface_tol
+    count = 0
+    for v in range(y0, y1, stride):
+        y = (v - ppy) / fy
+        for u in range(x0, x1, stride):
+            x = (u - ppx) / fx
+            da = y * axes[0, 1] + (x * axes[0, 0] + axes[0, 2])
+            dl = y * axes[1, 1] + (x * axes[1, 0] + axes[1, 2])
+            du = y * axes[2, 1] + (x * axes[2, 0] + axes[2, 2])
+            qa = da * da + dl * dl
+            half_b = da * fa + dl * fl
+            z_near = half_b / qa
+            off_a, off_l = z_near * da - fa, z_near * dl - fl
+            # Every use of a ray asks for one passing near the axis: the rest are dropped.
+            if not off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK):
+                continue
+            m = math.hypot(off_a, off_l) / radius
+            if not m < _RAY_MISS:
+                continue
+            z = float(depth[v, u])
+            # The chord equation qa z^2 + qb z + c0 = R^2 with -qb = 2 half_b, for the outer
+            # cylinder and the liquid's: the root of its discriminant, and hit.
+            neg_qb = 2.0 * half_b
+            qb2, qa2, qa4 = neg_qb * neg_qb, 2.0 * qa, 4.0 * qa
+            disc = qb2 - qa4 * (c0 - radii2[0])
+            disc_liq = qb2 - qa4 * (c0 - radii2[1])
+            # The outer cylinder's front (inf where the ray misses it).
+            front = (neg_qb - math.sqrt(max(disc, 0.0))) / qa2 if disc > 0 else np.inf
+            # The liquid chord's lower end: its near end on a ray rising away from the camera
+            # (du >= 0), else its far end.
+            z_low = (neg_qb - math.copysign(math.sqrt(max(disc_liq, 0.0)), du)) / qa2
+            low = z_low * du - fu
+            s_low[count] = (low if low > base else base) if disc_liq > 0 else np.nan
+            h = z * du - fu
+            ok = z > 0
+            a, b = z * da - fa, z * dl - fl
+            on = ok and math.hypot(a, b) < near_limit and h > base + 0.002 and h < top + surface_tol
+            height[count], s_axis[count], miss[count] = h, z_near * du - fu, m
+            valid[count], on_bottle[count], hit_liq[count] = ok, on, disc_liq > 0
+            before[count] = ok and not on and z < front - occluder_m
+            # A point within wall_band of the outer front surface may be the wall itself.
+            at_wall[count] = on and z < front + wall_band
+            count += 1
+    return (
+        s_low[:count],
+        height[:count],
+        s_axis[:count],
+        miss[:count],
+        valid[:count],
+        on_bottle[:count],
+        before[:count],
+        at_wall[:count],
+        hit_liq[:count],
+    )
 
 
 class LiquidLevelMeter:
@@ -1084,75 +1174,34 @@ class LiquidLevelMeter:
     ) -> _Rays:
         """Every ``stride``-th pixel (both ways) of the box whose line of sight passes within
         :data:`_RAY_MISS` of the radius from the axis, against the bottle's cylinders, with
-        what its depth says (see :class:`_Rays`)."""
-        x0, y0, x1, y1 = box
+        what its depth says (see :class:`_Rays` and :func:`_rays_kernel`)."""
         intr = frame.intrinsics
-        # The ray (x, y, 1) of pixel (u, v), so that depth z is its parameter; x and y are
-        # separable, so its components along the bottle's axes are sums of a row and a column:
-        # along away, lateral and up at once, (3, pixels).
-        x = (np.arange(x0, x1, stride, dtype=float) - intr.ppx) / intr.fx
-        y = (np.arange(y0, y1, stride, dtype=float) - intr.ppy) / intr.fy
-        axes = np.stack([bf.away, bf.lateral, bf.up])[:, :, None, None]
-        d = (y[:, None] * axes[:, 1] + (x * axes[:, 0] + axes[:, 2])).reshape(3, -1)
-        da, dl = d[0], d[1]
-        fa, fl, fu = bf.foot @ bf.away, bf.foot @ bf.lateral, bf.foot @ bf.up
-        # Horizontal offset from the axis along the ray: (z da - fa, z dl - fl), its square
-        # qa z^2 - 2 half_b z + c0.
-        qa = da**2 + dl**2
-        half_b = da * fa + dl * fl
-        # The ray's closest approach to the axis (horizontally), as a fraction of the radius.
-        z_near = half_b / qa
-        off_a, off_l = z_near * da - fa, z_near * dl - fl
-        # Every use of a ray asks for one passing near the axis: the rest are dropped here,
-        # before the per-ray work (the same rays, in the same order, as over the whole box).
-        # np.hypot is slow (~12 ns a value): a superset by squares first, then it on those.
-        reach = _RAY_MISS * bf.radius
-        maybe = (off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK)).nonzero()[0]
-        # (Gathers by ndarray.take: several times faster than fancy or boolean indexing.)
-        miss = np.hypot(off_a.take(maybe), off_l.take(maybe)) / bf.radius
-        keep = (miss < _RAY_MISS).nonzero()[0]
-        near, miss = maybe.take(keep), miss.take(keep)
-        da, dl, du = d.take(near, axis=1)
-        qa, half_b, z_near = qa.take(near), half_b.take(near), z_near.take(near)
-        z = frame.depth[y0:y1:stride, x0:x1:stride].ravel().take(near).astype(float)
-        # The chord equation qa z^2 + qb z + c0 = radius^2 with -qb = 2 half_b, for the outer
-        # cylinder and the liquid's at once: the root of its discriminant, and hit.
-        neg_qb = 2.0 * half_b
-        qb2, qa2, qa4 = neg_qb**2, 2.0 * qa, 4.0 * qa
-        c0 = fa**2 + fl**2
-        disc = qb2 - qa4 * (c0 - np.array([[bf.radius**2], [r_liq**2]]))
-        sq, (hit, hit_liq) = np.sqrt(np.maximum(disc, 0.0)), disc > 0
-        # The outer cylinder's front (inf where the ray misses it).
-        front = np.where(hit, (neg_qb - sq[0]) / qa2, np.inf)
-        # The liquid chord's lower end: its near end on a ray rising away from the camera
-        # (du >= 0), else its far end (the lower of the two heights, as np.fmin of both
-        # would give).
-        z_low = (neg_qb - np.copysign(sq[1], du)) / qa2
-        s_low = np.maximum(np.where(hit_liq, z_low * du - fu, np.nan), self.base)
-        valid = z > 0
-        height = z * du - fu
-        on_bottle = (
-            valid
-            & _hypot_below(z * da - fa, z * dl - fl, bf.radius + self.surface_tol)
-            & (height > self.base + 0.002)
-            & (height < bf.top + self.surface_tol)
+        depth = np.asarray(frame.depth)
+        if depth.shape != (intr.height, intr.width) or depth.shape != frame.color.shape[:2]:
+            raise PerceptionError(
+                f"the depth image is {depth.shape[1]}x{depth.shape[0]} and the colour image"
+                f" {frame.color.shape[1]}x{frame.color.shape[0]}: align depth to colour"
+                " before measuring"
+            )
+        out = _rays_kernel(
+            depth,
+            np.array(box, dtype=np.int64),
+            stride,
+            np.array([intr.ppx, intr.ppy, intr.fx, intr.fy]),
+            np.stack([bf.away, bf.lateral, bf.up, bf.foot]),
+            np.array(
+                [
+                    bf.radius,
+                    r_liq,
+                    bf.top,
+                    self.base,
+                    self.surface_tol,
+                    self.occluder_m,
+                    self.wall_band,
+                ]
+            ),
         )
-        before = valid & ~on_bottle & (z < front - self.occluder_m)
-        # A point within ``wall_band`` of the outer front surface may be the wall itself.
-        at_wall = on_bottle & (z < front + self.wall_band)
-        # Where the line of sight crosses the vertical plane through the axis facing the camera.
-        s_axis = z_near * du - fu
-        return _Rays(
-            s_low=s_low,
-            height=height,
-            s_axis=s_axis,
-            miss=miss,
-            valid=valid,
-            on_bottle=on_bottle,
-            before=before,
-            at_wall=at_wall,
-            hits_liquid_cylinder=hit_liq,
-        )
+        return _Rays(*out)
 
     def _wall_offsets(self, frame: RGBDFrame, bf: _Frame3D, s: Array) -> tuple[float, float] | None:
         """How far from the axis each side's wall shows in colour in rows ``s`` (left, right).
