@@ -525,11 +525,15 @@ def _rays_kernel(
     before, at_wall, hit_liq = np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n, np.bool_)
     radii2 = (radius * radius, r_liq * r_liq)
     near_limit = radius + surface_tol
+    near2 = near_limit * near_limit
+    xs = np.empty(len(range(x0, x1, stride)))
+    for k, u in enumerate(range(x0, x1, stride)):
+        xs[k] = (u - ppx) / fx
     count = 0
     for v in range(y0, y1, stride):
         y = (v - ppy) / fy
-        for u in range(x0, x1, stride):
-            x = (u - ppx) / fx
+        for k, u in enumerate(range(x0, x1, stride)):
+            x = xs[k]
             da = y * axes[0, 1] + (x * axes[0, 0] + axes[0, 2])
             dl = y * axes[1, 1] + (x * axes[1, 0] + axes[1, 2])
             du = y * axes[2, 1] + (x * axes[2, 0] + axes[2, 2])
@@ -540,7 +544,7 @@ def _rays_kernel(
             # Every use of a ray asks for one passing near the axis: the rest are dropped.
             if not off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK):
                 continue
-            m = math.hypot(off_a, off_l) / radius
+            m = math.sqrt(off_a * off_a + off_l * off_l) / radius
             if not m < _RAY_MISS:
                 continue
             z = float(depth[v, u])
@@ -560,7 +564,13 @@ def _rays_kernel(
             h = z * du - fu
             ok = z > 0
             a, b = z * da - fa, z * dl - fl
-            on = ok and math.hypot(a, b) < near_limit and h > base + 0.002 and h < top + surface_tol
+            on = ok and h > base + 0.002 and h < top + surface_tol
+            if on:  # within the radius: hypot (slow) only where the squares cannot tell
+                sq = a * a + b * b
+                if abs(sq - near2) <= near2 * _SQ_SLACK:
+                    on = math.hypot(a, b) < near_limit
+                else:
+                    on = sq < near2
             height[count], s_axis[count], miss[count] = h, z_near * du - fu, m
             valid[count], on_bottle[count], hit_liq[count] = ok, on, disc_liq > 0
             before[count] = ok and not on and z < front - occluder_m
