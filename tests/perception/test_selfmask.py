@@ -42,3 +42,30 @@ def test_self_mask_drops_the_gripper_the_base_and_the_far_table() -> None:
     assert self_mask(p_cam, T_base_cam, q, **kw).tolist() == [False, False, True, False]
     assert self_mask(p_cam, T_base_cam, None, **kw).tolist() == [True, False, True, False]
     assert self_mask(np.empty((0, 3)), T_base_cam, q, **kw).shape == (0,)
+
+
+def test_self_mask_is_the_distance_to_every_capsule_by_brute_force() -> None:
+    """20 000 random points around the arm at a random pose: kept exactly when within the
+    workspace and farther than radius + margin from every capsule's segment, as the
+    distances of :func:`segment_distances` to all capsules at once say (points within 1e-9 m
+    of a limit left out of the comparison)."""
+    rng = np.random.default_rng(11)
+    T_base_cam = make_T(rot_x(-2.1), [0.8, 0.1, 0.55])
+    q = rng.uniform(-0.8, 0.8, 6)
+    p_base = rng.uniform([-0.3, -0.9, -0.05], [0.95, 0.9, 0.7], (20_000, 3))
+    margin, workspace = 0.02, 0.85
+    a, b, radii = arm_capsules_base(q)
+    distances = segment_distances(p_base, a, b) - (radii + margin)
+    reach = np.hypot(p_base[:, 0], p_base[:, 1]) - workspace
+    want = (reach < 0) & (distances >= 0).all(axis=1)
+    clear = (np.abs(reach) > 1e-9) & (np.abs(distances) > 1e-9).all(axis=1)
+    in_capsule = (reach < 0) & (distances < 0).any(axis=1) & clear
+    assert in_capsule.sum() > 200 and (want & clear).sum() > 1000
+    got = self_mask(
+        transform_points(inv_T(T_base_cam), p_base),
+        T_base_cam,
+        q,
+        workspace_radius=workspace,
+        margin=margin,
+    )
+    np.testing.assert_array_equal(got[clear], want[clear])

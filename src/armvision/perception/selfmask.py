@@ -7,13 +7,15 @@ A detector that knows the camera pose (``T_base_cam``) and the joint angles at c
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armvision.geometry import inv_T, transform_points
+from armvision.geometry import inv_T
 from armvision.robot.kinematics import VX300S, ArmModel, fk
 
 Array = NDArray[np.float64]
@@ -86,34 +88,58 @@ def self_mask(
     Without ``joint_positions`` only the first capsule (the base, which does not move) is
     used; the moving links are then kept.
     """
-    keep = np.ones(len(p_cam), dtype=bool)
-    if len(p_cam) == 0:
-        return keep
-    p_base = transform_points(T_base_cam, p_cam)
-    # Contiguous columns: comparisons on them cost a fraction of those on (N, 3) rows.
-    x, y, z = np.ascontiguousarray(p_base.T)
-    keep &= np.hypot(x, y) < workspace_radius
+    p_cam = np.ascontiguousarray(p_cam, dtype=float).reshape(-1, 3)
     if joint_positions is not None:
         a, b, radii = arm_capsules_base(joint_positions, capsules, model)
     else:  # the base does not move: drop it even without joint angles
         base = capsules[0]
         a, b = np.array([base[0]], float), np.array([base[1]], float)
         radii = np.array([base[2]], float)
-    # Only points inside a capsule's bounding box can be within it: the distances to its
-    # segment are computed for those alone (most of a table's points are far away).
-    reach = radii + margin
-    lo, hi = np.minimum(a, b) - reach[:, None], np.maximum(a, b) + reach[:, None]
-    # First against the box around them all (one test per point), then per capsule.
-    (x0, y0, z0), (x1, y1, z1) = lo.min(axis=0), hi.max(axis=0)
-    inside = np.flatnonzero(
-        keep & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)
+    return _self_mask_kernel(
+        p_cam,
+        np.ascontiguousarray(T_base_cam, dtype=float),
+        np.ascontiguousarray(a),
+        np.ascontiguousarray(b),
+        radii + margin,
+        float(workspace_radius),
     )
-    x, y, z = x[inside], y[inside], z[inside]
-    for k, ((x0, y0, z0), (x1, y1, z1)) in enumerate(zip(lo, hi)):
-        boxed = np.flatnonzero(
-            (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)
-        )
-        if len(boxed):
-            near = segment_distances(p_base[inside[boxed]], a[k : k + 1], b[k : k + 1])
-            keep[inside[boxed[near[:, 0] < reach[k]]]] = False
+
+
+@numba.njit(cache=True, nogil=True)
+def _self_mask_kernel(
+    p_cam: Array, T_base_cam: Array, a: Array, b: Array, reach: Array, workspace_radius: float
+) -> NDArray[np.bool_]:
+    """:func:`self_mask`'s test, compiled (numpy's calls on the cloud's columns cost about
+    0.6 ms a frame): a point is kept within ``workspace_radius`` of the base's z axis and
+    farther than ``reach[k]`` from every segment a[k]-b[k] (base frame); the distances are
+    computed only for points inside a capsule's bounding box."""
+    n, m = len(p_cam), len(a)
+    lo, hi = np.empty((m, 3)), np.empty((m, 3))
+    for k in range(m):
+        for j in range(3):
+            lo[k, j] = min(a[k, j], b[k, j]) - reach[k]
+            hi[k, j] = max(a[k, j], b[k, j]) + reach[k]
+    keep = np.empty(n, dtype=np.bool_)
+    R, t = T_base_cam[:3, :3], T_base_cam[:3, 3]
+    for i in range(n):
+        px, py, pz = p_cam[i, 0], p_cam[i, 1], p_cam[i, 2]
+        x = px * R[0, 0] + py * R[0, 1] + pz * R[0, 2] + t[0]
+        y = px * R[1, 0] + py * R[1, 1] + pz * R[1, 2] + t[1]
+        z = px * R[2, 0] + py * R[2, 1] + pz * R[2, 2] + t[2]
+        inside = math.hypot(x, y) < workspace_radius
+        for k in range(m):
+            if not inside:
+                break
+            if not (lo[k, 0] <= x <= hi[k, 0] and lo[k, 1] <= y <= hi[k, 1]):
+                continue
+            if not lo[k, 2] <= z <= hi[k, 2]:
+                continue
+            # The distance to the segment: from its closest point, a + s (b - a), s in [0, 1].
+            ux, uy, uz = b[k, 0] - a[k, 0], b[k, 1] - a[k, 1], b[k, 2] - a[k, 2]
+            wx, wy, wz = x - a[k, 0], y - a[k, 1], z - a[k, 2]
+            s = (wx * ux + wy * uy + wz * uz) / max(ux * ux + uy * uy + uz * uz, 1e-12)
+            s = min(max(s, 0.0), 1.0)
+            dx, dy, dz = wx - s * ux, wy - s * uy, wz - s * uz
+            inside = math.sqrt(dx * dx + dy * dy + dz * dz) >= reach[k]
+        keep[i] = inside
     return keep
