@@ -2004,7 +2004,8 @@ def _wall_circle_kernel(
     band, scale = max(4.0 * sigma, 0.006), 2.0 * sigma
     res = np.empty(n)
     for k in range(n):
-        res[k] = math.hypot(uw[k, 0] - cx, uw[k, 1] - cy) - r
+        dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
+        res[k] = math.sqrt(dx * dx + dy * dy) - r
     wall = np.zeros(n, dtype=np.bool_)
     idx = np.empty(n, dtype=np.int64)
     for _ in range(2):
@@ -2022,7 +2023,8 @@ def _wall_circle_kernel(
             tolerance,
         )  # fmt: skip
         for k in range(n):
-            res[k] = math.hypot(uw[k, 0] - cx, uw[k, 1] - cy) - r
+            dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
+            res[k] = math.sqrt(dx * dx + dy * dy) - r
     return True, cx, cy, r, res, wall
 
 
