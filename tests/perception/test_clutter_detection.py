@@ -11,11 +11,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 import pytest
 from tests.perception.helpers import TiltedBench, detect_placed
 
-from armvision.camera.frames import Intrinsics, RGBDFrame
+from armvision.camera.frames import Intrinsics, RGBDFrame, depth_rms_error
 from armvision.config import load_config
 from armvision.eval.liquid import random_bottle
 from armvision.eval.objects import _render, _true_objects
@@ -134,6 +135,26 @@ def test_depth_edges_mark_jumps_and_flying_pixels_not_a_noisy_plane() -> None:
     plane = edges.copy()
     plane[195:305, 295:345] = False
     assert plane.mean() < 0.001
+
+
+def test_depth_edges_are_the_3x3_depth_range_of_opencvs_erode_and_dilate() -> None:
+    """On a strided grid of random depths with holes, every pixel's edge flag (all of them,
+    and a subset asked by index) is the one OpenCV's 3x3 erode (holes as 1 km) and dilate
+    give with Intel's noise limit, in float32."""
+    det = GeometricDetector()
+    rows = np.mgrid[0:240, 0:320][0]
+    grid = (0.6 + 0.3 * rows / 240 + RNG.normal(0.0, 0.003, rows.shape)).astype(np.float32)
+    grid[RNG.random(grid.shape) < 0.05] = 0.0
+    grid[100:140, 150:200] -= np.float32(0.05)  # a block standing 5 cm nearer
+    kernel = np.ones((3, 3), np.uint8)
+    near = cv2.erode(np.where(grid > 0, grid, np.float32(1e3)), kernel)
+    far = cv2.dilate(grid, kernel)
+    want = (far - near > np.maximum(det.edge_jump, 5.0 * depth_rms_error(grid))) & (grid > 0)
+    z = grid.astype(np.float64).ravel()
+    np.testing.assert_array_equal(det._depth_edges(z, INTR), want.ravel())
+    idx = np.flatnonzero(RNG.random(z.size) < 0.3)
+    np.testing.assert_array_equal(det._depth_edges(z, INTR, idx), want.ravel()[idx])
+    assert 0.005 < want.mean() < 0.2
 
 
 def _cluster(*parts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -30,6 +30,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from armvision.camera.frames import (
+    DEPTH_BASELINE_M,
+    DEPTH_FOCAL_PX,
+    DEPTH_SUBPIXEL,
     Intrinsics,
     RGBDFrame,
     deproject,
@@ -508,15 +511,16 @@ class GeometricDetector:
         at a grazing angle go too (their depth changes fast). :meth:`detect` asks about its
         candidates alone, a fraction of the grid."""
         s = self.pixel_stride
-        grid = z.reshape(-(-intr.height // s), -(-intr.width // s)).astype(np.float32)
-        kernel = np.ones((3, 3), np.uint8)
-        near = cv2.erode(np.where(grid > 0, grid, np.float32(1e3)), kernel).ravel()
-        far = cv2.dilate(grid, kernel).ravel()
-        at = grid.ravel()
-        if idx is not None:
-            near, far, at = near[idx], far[idx], at[idx]
-        limit = np.maximum(self.edge_jump, 5.0 * depth_rms_error(at))
-        return (far - near > limit) & (at > 0)
+        grid = z.reshape(-(-intr.height // s), -(-intr.width // s))
+        if idx is None:
+            idx = np.arange(grid.size)
+        return _depth_edges_kernel(
+            grid,
+            idx.astype(np.int64),
+            np.float32(self.edge_jump),
+            np.float32(DEPTH_SUBPIXEL),
+            np.float32(DEPTH_FOCAL_PX * DEPTH_BASELINE_M),
+        )
 
     def _self_filter(
         self, p_cam: Array, T_base_cam: Array | None, joint_positions: ArrayLike | None
@@ -2026,6 +2030,37 @@ def _wall_circle_kernel(
             dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
             res[k] = math.sqrt(dx * dx + dy * dy) - r
     return True, cx, cy, r, res, wall
+
+
+@numba.njit(cache=True, nogil=True)
+def _depth_edges_kernel(
+    grid: Array,
+    idx: NDArray[np.int64],
+    edge_jump: np.float32,
+    subpixel: np.float32,
+    focal_baseline: np.float32,
+) -> NDArray[np.bool_]:
+    """:meth:`GeometricDetector._depth_edges` of the flat indices ``idx`` of ``grid``:
+    the 3x3 neighbourhood's depth range (pixels without depth count as 1 km for its near end,
+    as 0 for its far end; the image border adds nothing) above max(``edge_jump``, 5 x
+    :func:`depth_rms_error`), in float32 (as the
+    depth camera's values, and in numpy's order of operations);
+    compiled, so only the pixels asked about are looked at (cv2's erode and dilate went
+    over the whole grid)."""
+    rows, cols = grid.shape
+    out = np.empty(len(idx), dtype=np.bool_)
+    for n in range(len(idx)):
+        r, c = idx[n] // cols, idx[n] % cols
+        near, far = np.float32(np.inf), np.float32(-np.inf)
+        for rr in range(max(r - 1, 0), min(r + 2, rows)):
+            for cc in range(max(c - 1, 0), min(c + 2, cols)):
+                g = np.float32(grid[rr, cc])
+                near = min(near, g if g > 0 else np.float32(1e3))
+                far = max(far, g)
+        at = np.float32(grid[r, c])
+        limit = max(edge_jump, np.float32(5.0) * ((at * at) * subpixel / focal_baseline))
+        out[n] = at > 0 and far - near > limit
+    return out
 
 
 def _radial(uw: Array, center: Array) -> Array:
