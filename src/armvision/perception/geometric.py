@@ -1971,22 +1971,48 @@ def _seen_through(
     anywhere along it, carried on past the point until it meets the table). Along the sight
     line the height falls, so it passes through a cylinder when it meets the cylinder's
     circle and is below the cylinder's top where it leaves it (or at the point)."""
-    hidden = np.zeros(len(uw), dtype=bool)
-    d2 = np.maximum(np.einsum("ij,ij->i", uw, uw), 1e-12)
-    for c, r, top in cylinders:
-        t_mid = (uw @ c) / d2
-        du = uw[:, 0] * t_mid - c[0]
-        dw = uw[:, 1] * t_mid - c[1]
-        miss2 = du * du + dw * dw
-        half = np.sqrt(np.maximum(r * r - miss2, 0.0) / d2)
-        t_in, t_out = t_mid - half, t_mid + half
-        if beyond:  # the sight line carried on past the point, until it meets the table
-            ok = camera_height + t_in * (h - camera_height) > 0.0
-        else:
-            t_out = np.minimum(t_out, 1.0)
-            ok = t_in < 1.0
-        h_out = camera_height + t_out * (h - camera_height)
-        hidden |= (miss2 <= r * r) & ok & (t_out > 0.0) & (h_out <= top)
+    if not cylinders:
+        return np.zeros(len(uw), dtype=bool)
+    return _seen_through_kernel(
+        np.ascontiguousarray(uw, dtype=float),
+        np.ascontiguousarray(h, dtype=float),
+        float(camera_height),
+        np.array([c.center for c in cylinders], dtype=float).reshape(-1, 2),
+        np.array([[c.radius, c.height] for c in cylinders], dtype=float),
+        bool(beyond),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _seen_through_kernel(
+    uw: Array, h: Array, camera_height: float, centers: Array, sizes: Array, beyond: bool
+) -> NDArray[np.bool_]:
+    """:func:`_seen_through`, compiled (a few numpy calls per cylinder and frame on a few
+    dozen points each): ``centers`` (K, 2), ``sizes`` (K, 2) the radii and heights. The
+    sight line to point p is t p, t from 0 (over the camera) to 1 (at p), at height
+    camera_height + t (h - camera_height); it crosses a circle between t_mid -+ half."""
+    hidden = np.zeros(len(uw), dtype=np.bool_)
+    for i in range(len(uw)):
+        u, w = uw[i, 0], uw[i, 1]
+        d2 = max(u * u + w * w, 1e-12)
+        rise = h[i] - camera_height
+        for k in range(len(centers)):
+            c0, c1, r, top = centers[k, 0], centers[k, 1], sizes[k, 0], sizes[k, 1]
+            t_mid = (u * c0 + w * c1) / d2
+            du, dw = u * t_mid - c0, w * t_mid - c1
+            miss2 = du * du + dw * dw
+            if not miss2 <= r * r:
+                continue
+            half = math.sqrt(max(r * r - miss2, 0.0) / d2)
+            t_in, t_out = t_mid - half, t_mid + half
+            if beyond:  # the sight line carried on past the point, until it meets the table
+                ok = camera_height + t_in * rise > 0.0
+            else:
+                t_out = min(t_out, 1.0)
+                ok = t_in < 1.0
+            if ok and t_out > 0.0 and camera_height + t_out * rise <= top:
+                hidden[i] = True
+                break
     return hidden
 
 
