@@ -90,14 +90,28 @@ def _ransac_hypothesis(
     if normal_prior is not None:
         ok &= np.abs(normals @ normal_prior) > math.cos(max_tilt_rad)
     d = -np.einsum("ij,ij->i", normals, a)
-    distances = p @ normals.T
-    distances += d
-    counts = (np.abs(distances, out=distances) < tolerance).sum(axis=0)
+    counts = _count_within(np.ascontiguousarray(p, dtype=float), normals, d, tolerance)
     counts[~ok] = -1
     best = int(np.argmax(counts))
     if counts[best] < 3:
         return None
     return normals[best], float(d[best])
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_within(p: Array, normals: Array, d: Array, tolerance: float) -> NDArray[np.int64]:
+    """How many points ``p`` (N, 3) lie within ``tolerance`` of each plane n . p + d = 0
+    (``normals`` (K, 3), ``d`` (K,)): RANSAC's scores, compiled (the (N, K) array of
+    distances cost a few hundred microseconds a frame)."""
+    counts = np.zeros(len(normals), dtype=np.int64)
+    for k in range(len(normals)):
+        n0, n1, n2, dk = normals[k, 0], normals[k, 1], normals[k, 2], d[k]
+        c = 0
+        for i in range(len(p)):
+            if abs(p[i, 0] * n0 + p[i, 1] * n1 + p[i, 2] * n2 + dk) < tolerance:
+                c += 1
+        counts[k] = c
+    return counts
 
 
 def fit_plane(
