@@ -29,6 +29,8 @@ $(STAMP): pyproject.toml
 	@extras=$$($(BIN)/python scripts/resolve_platform.py --here --extras $(EXTRAS) --optional realsense) && \
 	  echo "$(BIN)/python -m pip install --quiet -e '.[$$extras]'" && \
 	  $(BIN)/python -m pip install --quiet -e ".[$$extras]"
+	@echo "compiling the perception kernels (Numba; cached, once)"
+	@$(BIN)/python -c "from armvision.perception.geometric import compile_kernels; compile_kernels()"
 	@touch $(STAMP)
 
 # The whole system on a simulated scene: calibrate, detect, analyse, grab; a report against the truth.

@@ -58,7 +58,7 @@ from armvision.perception.fitting import (
     unit_depth_ray_columns,
     unit_depth_rays,
 )
-from armvision.perception.liquid import bottle_outline
+from armvision.perception.liquid import bottle_outline, compile_rays
 from armvision.perception.selfmask import VX300S_CAPSULES, self_mask
 from armvision.robot.kinematics import VX300S, ArmModel
 
@@ -125,6 +125,27 @@ def bottle_box(
     the meter fits its model to."""
     outline = bottle_outline(foot_cam, axis_cam, radius, height, BOTTLE_BODY_FRACTION)
     return _image_box(intr, outline)
+
+
+def compile_kernels() -> None:
+    """Compile the detector's Numba kernels (and the liquid meter's) once per process, from
+    Numba's on-disk cache after the first time (a few seconds then, when ``make setup``
+    does it), so that a detector's first frame is not late."""
+    if _COMPILED:
+        return
+    compile_rays()
+    uw = np.column_stack([np.cos(np.arange(12.0)), np.sin(np.arange(12.0)) + 1.0]) * 0.03
+    _wall_circle_kernel(uw, 0.001, 600, 8, 2e-5)
+    _depth_edges_kernel(
+        np.ones((3, 3)), np.arange(9), np.float32(0.012), np.float32(0.08), np.float32(21.2)
+    )
+    _seen_through_kernel(uw, np.ones(12), 0.5, uw[:1], np.array([[0.03, 0.1]]), False)
+    fit_plane(np.eye(3), 0.01, rng=np.random.default_rng(0), hypotheses=1)
+    self_mask(np.ones((1, 3)), np.eye(4), np.zeros(6), workspace_radius=1.0, margin=0.01)
+    _COMPILED.append(True)
+
+
+_COMPILED: list[bool] = []
 
 
 class GeometricDetector:
@@ -377,6 +398,7 @@ class GeometricDetector:
         self.pixel_stride = int(pixel_stride)
         self.max_fit_points = int(max_fit_points)
         self._rng = np.random.default_rng(seed)
+        compile_kernels()
         #: The last frame's table plane n.p_cam + d = 0 (n toward the camera): the hybrid
         #: detector hands it to the network's placement (FrameContext.table_plane).
         self.last_plane: tuple[Array, float] | None = None

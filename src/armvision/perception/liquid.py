@@ -590,6 +590,23 @@ def _rays_kernel(
     )
 
 
+def compile_rays() -> None:
+    """Compile :func:`_rays_kernel` for the depth types cameras give (float32 metres, and
+    float64) once per process, from Numba's on-disk cache after the first time (a few
+    seconds then, when ``make setup`` does it): a meter's first bottle is then not late."""
+    if _COMPILED:
+        return
+    box, camera = np.array([0, 0, 2, 2]), np.array([1.0, 1.0, 600.0, 600.0])
+    axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.2, 0.6]])
+    sizes = np.array([0.03, 0.028, 0.2, 0.002, 0.004, 0.015, 0.008])
+    for dtype in (np.float32, np.float64):
+        _rays_kernel(np.ones((2, 2), dtype), box, 1, camera, axes, sizes)
+    _COMPILED.append(True)
+
+
+_COMPILED: list[bool] = []
+
+
 class LiquidLevelMeter:
     """Measures the liquid level of upright bottles; every tuning value a named argument.
 
@@ -664,6 +681,7 @@ class LiquidLevelMeter:
         self.edge_band_in, self.edge_band_out = edge_band_in, edge_band_out
         self.liquid_edge_in = liquid_edge_in
         self._rng = np.random.default_rng(seed)
+        compile_rays()
         # The last table normal's plane basis and unit ring: every bottle on one table (all
         # of a frame's, from one detector) and both box fits of a bottle share them.
         self._basis_key: bytes | None = None
