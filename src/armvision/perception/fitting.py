@@ -98,7 +98,7 @@ def _ransac_hypothesis(
     return normals[best], float(d[best])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _count_within(p: Array, normals: Array, d: Array, tolerance: float) -> NDArray[np.int64]:
     """How many points ``p`` (N, 3) lie within ``tolerance`` of each plane n . p + d = 0
     (``normals`` (K, 3), ``d`` (K,)): RANSAC's scores, compiled (the (N, K) array of
@@ -227,7 +227,7 @@ def solve3(A: Array, b: Array) -> tuple[float, float, float] | None:
 # stage's thread runs meanwhile.
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _solve3(
     a: float,
     b_: float,
@@ -256,7 +256,7 @@ def _solve3(
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def kasa_kernel(xy: Array, step: int) -> tuple[float, float, float]:
     """:func:`fit_circle_kasa` of every ``step``-th point of ``xy`` (N >= 1, 2): (cx, cy, r)."""
     n = 0
@@ -288,7 +288,7 @@ def kasa_kernel(xy: Array, step: int) -> tuple[float, float, float]:
     return mx + a, my + b, math.sqrt(max(c + a * a + b * b, 0.0))
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def gauss_newton_circle(
     xy: Array,
     idx: NDArray[np.int64],

@@ -2005,7 +2005,7 @@ def _seen_through(
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _seen_through_kernel(
     uw: Array, h: Array, camera_height: float, centers: Array, sizes: Array, beyond: bool
 ) -> NDArray[np.bool_]:
@@ -2038,7 +2038,7 @@ def _seen_through_kernel(
     return hidden
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _wall_circle_kernel(
     uw: Array, sigma: float, max_fit_points: int, iterations: int, tolerance: float
 ) -> tuple[bool, float, float, float, Array, NDArray[np.bool_]]:
@@ -2080,7 +2080,7 @@ def _wall_circle_kernel(
     return True, cx, cy, r, res, wall
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _depth_edges_kernel(
     grid: Array,
     idx: NDArray[np.int64],

@@ -480,7 +480,7 @@ class _Rays:
     hits_liquid_cylinder: NDArray[np.bool_]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _rays_kernel(
     depth: NDArray[np.floating],
     box: NDArray[np.int64],

@@ -105,7 +105,7 @@ def self_mask(
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _self_mask_kernel(
     p_cam: Array, T_base_cam: Array, a: Array, b: Array, reach: Array, workspace_radius: float
 ) -> NDArray[np.bool_]:
