@@ -2070,10 +2070,8 @@ def _wall_circle_kernel(
                 count += 1
         if count < 10:  # too thin a wall: no circle
             return False, cx, cy, r, res, wall
-        cx, cy, r = gauss_newton_circle(
-            uw, idx[: count : max(1, count // max_fit_points)], cx, cy, r, scale, iterations,
-            tolerance,
-        )  # fmt: skip
+        fit_to = idx[: count : max(1, count // max_fit_points)]
+        cx, cy, r = gauss_newton_circle(uw, fit_to, cx, cy, r, scale, iterations, tolerance)
         for k in range(n):
             dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
             res[k] = math.sqrt(dx * dx + dy * dy) - r
@@ -2091,10 +2089,9 @@ def _depth_edges_kernel(
     """:meth:`GeometricDetector._depth_edges` of the flat indices ``idx`` of ``grid``:
     the 3x3 neighbourhood's depth range (pixels without depth count as 1 km for its near end,
     as 0 for its far end; the image border adds nothing) above max(``edge_jump``, 5 x
-    :func:`depth_rms_error`), in float32 (as the
-    depth camera's values, and in numpy's order of operations);
-    compiled, so only the pixels asked about are looked at (cv2's erode and dilate went
-    over the whole grid)."""
+    :func:`depth_rms_error`), in float32 as the depth camera's values (and in numpy's order
+    of operations); compiled, so only the pixels asked about are looked at (cv2's erode and
+    dilate went over the whole grid)."""
     rows, cols = grid.shape
     out = np.empty(len(idx), dtype=np.bool_)
     for n in range(len(idx)):

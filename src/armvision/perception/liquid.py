@@ -509,9 +509,8 @@ def _rays_kernel(
     (z da - fa, z dl - fl), whose square is qa z^2 - 2 half_b z + c0."""
     x0, y0, x1, y1 = box[0], box[1], box[2], box[3]
     ppx, ppy, fx, fy = camera[0], camera[1], camera[2], camera[3]
-    radius, r_liq, top, base, surface_tol, occluder_m, wall_band = (
-        sizes[0], sizes[1], sizes[2], sizes[3], sizes[4], sizes[5], sizes[6]
-    )  # fmt: skip
+    radius, r_liq, top = sizes[0], sizes[1], sizes[2]
+    base, surface_tol, occluder_m, wall_band = sizes[3], sizes[4], sizes[5], sizes[6]
     fa = axes[3, 0] * axes[0, 0] + axes[3, 1] * axes[0, 1] + axes[3, 2] * axes[0, 2]
     fl = axes[3, 0] * axes[1, 0] + axes[3, 1] * axes[1, 1] + axes[3, 2] * axes[1, 2]
     fu = axes[3, 0] * axes[2, 0] + axes[3, 1] * axes[2, 1] + axes[3, 2] * axes[2, 2]
