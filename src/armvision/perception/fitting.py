@@ -2,7 +2,8 @@
 
 - :func:`fit_plane`: the one plane fit (RANSAC hypotheses, then least-squares refits)
   behind the geometric detector's table, the liquid meter's table and the tag plate.
-- :func:`fit_circle_kasa` and :func:`fit_circle_geometric`: circles in the table plane.
+- :func:`fit_circle_kasa` and :func:`fit_circle_geometric`: circles in the table plane; their
+  compiled loops (:func:`kasa_kernel`, :func:`gauss_newton_circle`) are the detector's wall fits.
 - :func:`unit_depth_rays`: the camera-frame rays of a pixel grid, cached per intrinsics.
 """
 
@@ -346,53 +347,24 @@ def fit_circle_geometric(
 
     Points with |residual| > ``scale`` get weight scale / |residual|, so stray points pull
     linearly, not quadratically. Stops when no parameter moves more than ``tolerance``
-    (metres) in an iteration. Returns (centre, radius, residuals). One circle of
-    :func:`fit_circles_geometric`.
+    (metres) in an iteration. Returns (centre, radius, residuals). The compiled loop is
+    :func:`gauss_newton_circle` (scipy.optimize.least_squares costs more per call than a
+    frame's fits together).
     """
-    xy = np.asarray(xy, dtype=float)
-    centers, radii = fit_circles_geometric(
-        xy,
-        np.array([0, len(xy)]),
-        np.asarray(center, dtype=float)[None],
-        np.array([float(radius)]),
-        np.array([float(scale)]),
-        iterations,
-        tolerance,
-    )
-    res = np.linalg.norm(xy - centers[0], axis=1) - radii[0]
-    return centers[0], float(radii[0]), res
-
-
-def fit_circles_geometric(
-    xy: Array,
-    bounds: NDArray[np.intp],
-    centers: Array,
-    radii: Array,
-    scales: Array,
-    iterations: int = 15,
-    tolerance: float = 1e-6,
-) -> tuple[Array, Array]:
-    """:func:`fit_circle_geometric` of several circles: circle k fitted to the points
-    ``xy[bounds[k]:bounds[k + 1]]`` (each run non-empty) from ``centers[k]`` and
-    ``radii[k]`` with Huber scale ``scales[k]``, each stopping on its own. Returns the
-    centres (K, 2) and radii (K,). scipy.optimize.least_squares costs more per call than a
-    frame's fits together."""
     xy = np.ascontiguousarray(xy, dtype=float)
-    c = np.array(centers, dtype=float).reshape(-1, 2)
-    r = np.array(radii, dtype=float).reshape(-1)
-    scales = np.asarray(scales, dtype=float).reshape(-1)
-    for k in range(len(r)):
-        c[k, 0], c[k, 1], r[k] = gauss_newton_circle(
-            xy,
-            np.arange(bounds[k], bounds[k + 1], dtype=np.int64),
-            float(c[k, 0]),
-            float(c[k, 1]),
-            float(r[k]),
-            float(scales[k]),
-            int(iterations),
-            float(tolerance),
-        )
-    return c, r
+    cx0, cy0 = (float(v) for v in np.asarray(center, dtype=float))
+    cx, cy, r = gauss_newton_circle(
+        xy,
+        np.arange(len(xy), dtype=np.int64),
+        cx0,
+        cy0,
+        float(radius),
+        float(scale),
+        int(iterations),
+        float(tolerance),
+    )
+    res = np.linalg.norm(xy - np.array([cx, cy]), axis=1) - r
+    return np.array([cx, cy]), float(r), res
 
 
 def percentile(a: Array, q: float) -> float:

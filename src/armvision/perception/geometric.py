@@ -20,6 +20,7 @@ height above the table.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
@@ -127,12 +128,11 @@ def bottle_box(
     return _image_box(intr, outline)
 
 
+@functools.cache
 def compile_kernels() -> None:
     """Compile the detector's Numba kernels (and the liquid meter's) once per process, from
     Numba's on-disk cache after the first time (a few seconds then, when ``make setup``
     does it), so that a detector's first frame is not late."""
-    if _COMPILED:
-        return
     compile_rays()
     uw = np.column_stack([np.cos(np.arange(12.0)), np.sin(np.arange(12.0)) + 1.0]) * 0.03
     _wall_circle_kernel(uw, 0.001, 600, 8, 2e-5)
@@ -142,10 +142,6 @@ def compile_kernels() -> None:
     _seen_through_kernel(uw, np.ones(12), 0.5, uw[:1], np.array([[0.03, 0.1]]), False)
     fit_plane(np.eye(3), 0.01, rng=np.random.default_rng(0), hypotheses=1)
     self_mask(np.ones((1, 3)), np.eye(4), np.zeros(6), workspace_radius=1.0, margin=0.01)
-    _COMPILED.append(True)
-
-
-_COMPILED: list[bool] = []
 
 
 class GeometricDetector:
@@ -538,7 +534,7 @@ class GeometricDetector:
             idx = np.arange(grid.size)
         return _depth_edges_kernel(
             grid,
-            idx.astype(np.int64),
+            np.asarray(idx, dtype=np.int64),
             np.float32(self.edge_jump),
             np.float32(DEPTH_SUBPIXEL),
             np.float32(DEPTH_FOCAL_PX * DEPTH_BASELINE_M),
@@ -1468,18 +1464,18 @@ class GeometricDetector:
     def _wall_circle(self, uw: Array, sigma: float) -> _Circle | None:
         """Circle through the cluster's camera-facing wall in the table plane: (centre, radius,
         every point's residual, which points are the wall); None if the wall is too thin."""
-        return self._wall_circles([uw], [sigma])[0]
+        ok, cx, cy, radius, res, wall = _wall_circle_kernel(
+            np.ascontiguousarray(uw, dtype=float),
+            float(sigma),
+            self.max_fit_points,
+            self.fit_iterations,
+            self.fit_tolerance,
+        )
+        return (np.array([cx, cy]), radius, res, wall) if ok else None
 
     def _wall_circles(self, uws: Sequence[Array], sigmas: Sequence[float]) -> list[_Circle | None]:
         """:meth:`_wall_circle` of several clusters (points ``uws``, depth noise ``sigmas``)."""
-        out: list[_Circle | None] = []
-        for uw, sigma in zip(uws, sigmas):
-            uw = np.ascontiguousarray(uw, dtype=float)
-            ok, cx, cy, radius, res, wall = _wall_circle_kernel(
-                uw, float(sigma), self.max_fit_points, self.fit_iterations, self.fit_tolerance
-            )
-            out.append((np.array([cx, cy]), radius, res, wall) if ok else None)
-        return out
+        return [self._wall_circle(uw, sigma) for uw, sigma in zip(uws, sigmas)]
 
     def _color_top(
         self,

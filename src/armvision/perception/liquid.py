@@ -76,6 +76,7 @@ figures are in the README).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Callable
@@ -525,7 +526,7 @@ def _rays_kernel(
     radii2 = (radius * radius, r_liq * r_liq)
     near_limit = radius + surface_tol
     near2 = near_limit * near_limit
-    xs = np.empty(len(range(x0, x1, stride)))
+    xs = np.empty(cols)
     for k, u in enumerate(range(x0, x1, stride)):
         xs[k] = (u - ppx) / fx
     count = 0
@@ -589,21 +590,16 @@ def _rays_kernel(
     )
 
 
+@functools.cache
 def compile_rays() -> None:
     """Compile :func:`_rays_kernel` for the depth types cameras give (float32 metres, and
     float64) once per process, from Numba's on-disk cache after the first time (a few
     seconds then, when ``make setup`` does it): a meter's first bottle is then not late."""
-    if _COMPILED:
-        return
     box, camera = np.array([0, 0, 2, 2]), np.array([1.0, 1.0, 600.0, 600.0])
     axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.2, 0.6]])
     sizes = np.array([0.03, 0.028, 0.2, 0.002, 0.004, 0.015, 0.008])
     for dtype in (np.float32, np.float64):
         _rays_kernel(np.ones((2, 2), dtype), box, 1, camera, axes, sizes)
-    _COMPILED.append(True)
-
-
-_COMPILED: list[bool] = []
 
 
 class LiquidLevelMeter:

@@ -126,9 +126,9 @@ def _self_mask_kernel(
         x = px * R[0, 0] + py * R[0, 1] + pz * R[0, 2] + t[0]
         y = px * R[1, 0] + py * R[1, 1] + pz * R[1, 2] + t[1]
         z = px * R[2, 0] + py * R[2, 1] + pz * R[2, 2] + t[2]
-        inside = math.hypot(x, y) < workspace_radius
+        kept = math.hypot(x, y) < workspace_radius
         for k in range(m):
-            if not inside:
+            if not kept:
                 break
             if not (lo[k, 0] <= x <= hi[k, 0] and lo[k, 1] <= y <= hi[k, 1]):
                 continue
@@ -140,6 +140,6 @@ def _self_mask_kernel(
             s = (wx * ux + wy * uy + wz * uz) / max(ux * ux + uy * uy + uz * uz, 1e-12)
             s = min(max(s, 0.0), 1.0)
             dx, dy, dz = wx - s * ux, wy - s * uy, wz - s * uz
-            inside = math.sqrt(dx * dx + dy * dy + dz * dz) >= reach[k]
-        keep[i] = inside
+            kept = math.sqrt(dx * dx + dy * dy + dz * dz) >= reach[k]
+        keep[i] = kept
     return keep
