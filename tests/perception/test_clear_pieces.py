@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from tests.perception.helpers import TiltedBench
 
 from armvision.camera.frames import RGBDFrame
@@ -76,11 +77,11 @@ def test_a_front_arc_puts_the_centre_on_its_bisector_behind_its_median() -> None
     assert abs(np.linalg.norm(got) - np.linalg.norm(center)) < 0.15 * r
 
 
-def _cup_with_liquid(level: float, wall_missing: float) -> RGBDFrame:
+def _cup_with_liquid(level: float, wall_missing: float, behind: float = 0.3) -> RGBDFrame:
     """The cup holding liquid up to ``level``: below it the liquid shows through the wall in
-    6-pixel blocks (no depth on 55 %, the table on 30 %, the wall's depth on the rest);
-    above it the clear wall returns no depth on ``wall_missing`` of the blocks and the table
-    behind on the rest."""
+    6-pixel blocks (no depth on 55 %, the table on ``behind``, the wall's depth on the
+    rest); above it the clear wall returns no depth on ``wall_missing`` of the blocks and
+    the table behind on the rest."""
     rng = np.random.default_rng(8)
     table, cup = _table_and_cup()
     near, _ = BENCH.cylinder(FOOT, RADIUS)
@@ -90,24 +91,29 @@ def _cup_with_liquid(level: float, wall_missing: float) -> RGBDFrame:
     depth = table.copy()
     liquid = (cup > 0) & (h <= level)
     depth[liquid & (kind < 0.55)] = 0.0
-    seen = liquid & (kind >= 0.85)
+    seen = liquid & (kind >= 0.55 + behind)
     depth[seen] = cup[seen]
     depth[(cup > 0) & (h > level) & (kind < wall_missing)] = 0.0
     return BENCH.frame(depth)
 
 
-def test_a_clear_cup_seen_by_its_liquid_is_as_tall_as_its_clear_wall() -> None:
-    """Liquid 4.5 cm deep in the 10 cm cup: the pieces stand lower than any cup, but the wall
-    above returns no depth over half of it, so they are a cup whose top is where that stops
+@pytest.mark.parametrize(("level", "behind"), [(0.045, 0.3), (0.025, 0.0)])
+def test_a_clear_cup_seen_by_its_liquid_is_as_tall_as_its_clear_wall(
+    level: float, behind: float
+) -> None:
+    """Liquid 4.5 cm deep in the 10 cm cup, or 2.5 cm (lower than any object the detector
+    reports, ``min_object_height``; its wall's depth wherever it is not missing, or its
+    pieces are too few to judge): the pieces stand lower than any cup, but the wall above
+    returns no depth over half of it, so they are a cup whose top is where that stops
     (overshooting by up to the inside seen over the rim, never short of the liquid). With
     the wall above returning the table behind, the low pieces are not a cup."""
-    found = GeometricDetector().detect(_cup_with_liquid(0.045, wall_missing=0.55))
+    found = GeometricDetector().detect(_cup_with_liquid(level, 0.55, behind))
     assert [d.label for d in found] == ["cup"]
     assert 0.085 <= found[0].height <= 0.135
     foot = found[0].center_cam - 0.5 * found[0].height * found[0].axis_cam
     off = foot - FOOT
     assert float(np.linalg.norm(off - (off @ BENCH.up) * BENCH.up)) < 0.015
-    assert GeometricDetector().detect(_cup_with_liquid(0.045, wall_missing=0.0)) == []
+    assert GeometricDetector().detect(_cup_with_liquid(level, 0.0, behind)) == []
 
 
 def _march(uw: np.ndarray, h: np.ndarray, cam_h: float, cyl: _Standing, beyond: bool) -> bool:

@@ -1054,14 +1054,15 @@ class GeometricDetector:
         within
         ``fragment_clearance`` of another detection's footprint (its edges, a grazing face),
         are grouped on a grid twice as coarse. A group of at least ``fragment_min_points``,
-        its top from ``fragment_min_height`` to below ``bottle_min_height``, its bearings
+        its top from ``fragment_min_height`` to below ``bottle_min_height`` (see below for
+        lower ones), its bearings
         spanning no more than ``fragment_max_span`` x the radius at its range (wider: a
         surface, or something lying), is taken for the front of a container of radius
         ``fragment_radius`` (scattered patches do not fix a radius), its centre behind them
-        (:func:`_behind_front`), its height their top. A lower group (clear plastic lying on
-        its side, on ClearGrasp's frames, or the liquid in a clear cup) stands that high only
-        when a clear wall above it does (:meth:`_clear_wall_top`), and is as tall as that
-        wall. It replaces the group's pieces when it
+        (:func:`_behind_front`), its height their top. A lower group, however low (clear
+        plastic lying on its side, on ClearGrasp's frames, or the liquid or the bottom of a
+        clear cup), stands that high only when a clear wall above it does
+        (:meth:`_clear_wall_top`), and is as tall as that wall. It replaces the group's pieces when it
         stands ``fragment_clearance`` clear of every other detection and returns no depth
         over at least ``clear_share`` of its front (lines of sight through nearer
         objects left out): a clear cup. Its centre is good to a centimetre or two: enough to
@@ -1115,9 +1116,9 @@ class GeometricDetector:
         for label in np.unique(labels[labels > 0]):
             group = which[labels == label]
             top = self._top(h[group])
-            if len(group) < self.fragment_min_points or not (
-                self.min_object_height <= top < self.bottle_min_height
-            ):
+            # However low (every candidate point is at least min_height up): a clear cup's
+            # liquid or bottom, its wall above blank, is judged by that wall below.
+            if len(group) < self.fragment_min_points or top >= self.bottle_min_height:
                 continue
             bearings = np.arctan2(uw[group, 1], uw[group, 0])
             span = float(bearings.max() - bearings.min()) * float(np.median(np.hypot(*uw[group].T)))
