@@ -1062,10 +1062,10 @@ class GeometricDetector:
         (:func:`_behind_front`), its height their top. A lower group, however low (clear
         plastic lying on its side, on ClearGrasp's frames, or the liquid or the bottom of a
         clear cup), stands that high only when a clear wall above it does
-        (:meth:`_clear_wall_top`), and is as tall as that wall. It replaces the group's pieces when it
-        stands ``fragment_clearance`` clear of every other detection and returns no depth
-        over at least ``clear_share`` of its front (lines of sight through nearer
-        objects left out): a clear cup. Its centre is good to a centimetre or two: enough to
+        (:meth:`_clear_wall_top`), and is as tall as that wall. It replaces the group's
+        pieces when it stands ``fragment_clearance`` clear of every other detection and
+        returns no depth over at least ``clear_share`` of its front (lines of sight through
+        nearer objects left out): a clear cup. Its centre is good to a centimetre or two: enough to
         count it and to keep a grasp clear of it. Taller groups are left as they were: a
         bottle is something the tasks grasp.
         """
