@@ -105,6 +105,58 @@ class TiltedBench:
             depth = np.where(inner, far, depth)
         return np.where(wall, near, depth)
 
+    def capped_box(
+        self,
+        foot: np.ndarray,
+        size: tuple[float, float, float],
+        cap: tuple[float, float],
+        turn: float = 0.0,
+    ) -> np.ndarray:
+        """Depth image of the table and an upright box standing at ``foot``, ``size`` (width,
+        depth, height; its front faces the camera turned by ``turn`` rad about the vertical),
+        with a cylinder of ``cap`` (radius, top height; radius 0 for none) on its top's
+        centre: a flat-sided bottle. Each ray's nearest hit of the box's four sides, its top
+        and the cap's wall and top."""
+        width, depth_, height = size
+        cap_radius, cap_top = cap
+        toward = -(foot - (foot @ self.up) * self.up)
+        toward /= np.linalg.norm(toward)
+        side = np.cross(self.up, toward)
+        front = math.cos(turn) * toward + math.sin(turn) * side
+        lateral = np.cross(self.up, front)
+        best = np.full(self.rays.shape[:2], np.inf)
+
+        def hit(t: np.ndarray, on: np.ndarray) -> None:
+            on = on & np.isfinite(t) & (t > 0.0) & (t < best)
+            best[on] = t[on]
+
+        def at(t: np.ndarray) -> np.ndarray:
+            return self.rays * t[..., None] - foot  # the ray's point, from the foot
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            faces = ((front, depth_, lateral, width), (lateral, width, front, depth_))
+            for normal, across, along, extent in faces:
+                for sign in (1.0, -1.0):
+                    t = (0.5 * across + foot @ (sign * normal)) / (self.rays @ (sign * normal))
+                    p = at(t)
+                    h = p @ self.up
+                    hit(t, (np.abs(p @ along) <= 0.5 * extent) & (h >= 0.0) & (h <= height))
+            lid = at((height - self.height) / self.along)
+            t_lid = (height - self.height) / self.along
+            hit(
+                t_lid,
+                (np.abs(lid @ front) <= 0.5 * depth_) & (np.abs(lid @ lateral) <= 0.5 * width),
+            )
+            if cap_radius > 0.0:
+                near, _ = self.cylinder(foot, cap_radius)
+                h_near = self.heights(near)
+                hit(near, (h_near >= height) & (h_near <= cap_top))
+                t_top = (cap_top - self.height) / self.along
+                top = at(t_top)
+                off_axis = top - (top @ self.up)[..., None] * self.up
+                hit(t_top, np.linalg.norm(off_axis, axis=-1) <= cap_radius)
+        return np.where(np.isfinite(best), best, self.table_depth())
+
     def frame(self, depth: np.ndarray) -> RGBDFrame:
         color = np.full((self.INTR.height, self.INTR.width, 3), 128, np.uint8)
         return RGBDFrame(
