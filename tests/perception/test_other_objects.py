@@ -246,3 +246,34 @@ def test_a_flat_sided_bottle_narrowing_to_its_cap_is_a_bottle_a_box_is_not() -> 
         assert float(np.linalg.norm(off - (off @ bench.up) * bench.up)) < 0.03, turn
         assert found((0.09, 0.06, 0.21), (0.0, 0.21), turn).label == "other", turn
     assert found((0.15, 0.06, 0.17), (0.015, 0.21), 0.0).label == "other"
+
+
+def test_objects_standing_together_that_fit_no_shape_are_one_obstacle() -> None:
+    """A lidded cylinder 13 cm wide and 25 cm tall with a 25 cm long box against its foot
+    (as PoseCNN's YCB frame 2 has a pitcher with a banana and a gelatin box against it) fit
+    no round wall and no flat face: before, nothing was reported. Now one obstacle, other,
+    as tall as the cylinder, whose footprint holds both. A board 70 cm long and 20 cm high
+    on the same bench is wider than anything standing on a table (``shapeless_max_width``),
+    and a 40 cm box 5 cm high is the surface's own relief: nothing for either, while the
+    board at 45 cm is one obstacle."""
+    bench = TiltedBench()
+    foot = bench.table_point(300.0, 330.0)
+    toward = -(foot - (foot @ bench.up) * bench.up)
+    side = np.cross(bench.up, toward / np.linalg.norm(toward))
+    box_foot = foot + side * (0.065 + 0.125)
+    cylinder = bench.vessel(foot, 0.065, 0.25, lid=True)
+    box = bench.capped_box(box_foot, (0.25, 0.06, 0.06), (0.0, 0.06))
+    depth = np.where(cylinder > 0, cylinder, np.inf)
+    depth = np.minimum(depth, np.where(box > 0, box, np.inf))
+    found = GeometricDetector().detect(bench.frame(np.where(np.isfinite(depth), depth, 0.0)))
+    assert [d.label for d in found] == ["other"]
+    assert abs(found[0].height - 0.25) < 0.005
+    center = found[0].center_cam
+    for point in (foot, box_foot):
+        off = center - point
+        assert float(np.linalg.norm(off - (off @ bench.up) * bench.up)) < found[0].radius
+    for size, reported in (((0.7, 0.06, 0.2), 0), ((0.4, 0.06, 0.05), 0), ((0.45, 0.06, 0.2), 1)):
+        board = bench.capped_box(foot, size, (0.0, size[2]))
+        assert [d.label for d in GeometricDetector().detect(bench.frame(board))] == [
+            "other"
+        ] * reported, size
