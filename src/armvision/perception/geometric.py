@@ -170,60 +170,61 @@ class GeometricDetector:
     its footprint's width the diameter, unless at least ``bottle_min_height`` tall it is a
     clear bottle's cap and neck over a body that returned no depth (:meth:`_cap_over_gap`):
     a bottle about the cap's axis, or it narrows to a cap in its top ``cap_band``
-    (:meth:`_narrow_top`): a flat-sided bottle. (6) A short cluster cut by the left, right or top
-    image border may be a clear bottle whose cap is outside the image: if its silhouette
-    continues upward in colour (``color_contrast`` grey levels against its surroundings, with
-    nothing standing behind it in depth) by more than ``bottle_gap``, it is a bottle whose
-    height is that body top / ``bottle_body_fraction`` (a shape prior: the simulated bottles'
-    body is 72 % of their height). (7) Nearest first, an object whose front surface returns
-    no depth over at least ``clear_share`` of it (samples seen through a nearer object's
-    fitted cylinder, a clear one's 1 cm wider, left out) and
+    (:meth:`_narrow_top`): a flat-sided bottle. A cluster that fits no shape at all, not
+    even a flat face (objects standing against each other), is one obstacle, other, when it
+    is not too thin, too wide or too low for that (:meth:`_shapeless_obstacles`). (6) A
+    short cluster cut by the left, right or top image border may be a clear bottle whose cap is
+    outside the image: if its silhouette continues upward in colour (``color_contrast`` grey
+    levels against its surroundings, with nothing standing behind it in depth) by more than
+    ``bottle_gap``, it is a bottle whose height is that body top / ``bottle_body_fraction`` (a
+    shape prior: the simulated bottles' body is 72 % of their height). (7) Nearest first, an
+    object whose front surface returns no depth over at least ``clear_share`` of it (samples
+    seen through a nearer object's fitted cylinder, a clear one's 1 cm wider, left out) and
     ``clear_min_radius`` or more in radius is clear: a bottle by height, else a cup; not a
-    cluster with no round wall whose sides (below 0.75 x its top) lie within
-    ``flat_face_rms`` of one line over at least 1.5 x ``clear_min_radius`` of width: one
-    planar face, a box of shiny metal or foil that returned no depth. (8) A clear cup
-    seen only in pieces (patches too small for a cluster, or a clear piece fitted with a
-    circle under ``clear_refit_radius``) is one cup of ``fragment_radius`` behind them
-    when they group together and its front returns no depth over ``clear_share`` of it
-    (:meth:`_clear_pieces`; ``fragment_min_points = 0`` turns this off). Only every
-    ``pixel_stride``-th pixel and row is used, and circle fits use at most
+    cluster with no round wall whose sides (below 0.75 x its top) lie within ``flat_face_rms``
+    of one line over at least 1.5 x ``clear_min_radius`` of width: one planar face, a box of
+    shiny metal or foil that returned no depth. (8) A clear cup seen only in pieces (patches too
+    small for a cluster, or a clear piece fitted with a circle under ``clear_refit_radius``) is
+    one cup of ``fragment_radius`` behind them when they group together and its front returns no
+    depth over ``clear_share`` of it (:meth:`_clear_pieces`; ``fragment_min_points = 0`` turns
+    this off). Only every ``pixel_stride``-th pixel and row is used, and circle fits use at most
     ``max_fit_points`` points.
 
-    The shape rules. A bottle: at least ``bottle_min_height`` tall, or a neck (the top
-    quarter's 90th-percentile distance from the axis below ``neck_ratio`` x the radius), or a
-    gap of at least ``bottle_gap`` with no points in the height profile under something narrow
-    (below ``gap_top_ratio`` x the radius: a cap, not a clear cup's rim). A tall object with
-    no neck and no gap, or a gap under a wide closed top (a lid over a band that returned no
-    depth), is other when its top ``top_band`` is as wide as the body (75th
-    percentile of distances from the axis at least ``wide_top_ratio`` x the radius or, if
-    larger, x the median over 2 cm slices below of the same percentile: a can stack or
-    canister; a partly seen wall fits a circle narrower than its points), and a tall object
-    with no neck, cap or gap is other when its camera-facing wall fits two straight lines (as
-    for cups, below) over at least ``tall_face_min_width`` (a box standing on end; a narrower
-    arc is nearly straight: a bottle's sliver past a nearer object). A closed
-    top: of the points inside the rim (nearer the axis than ``closed_top_inner`` x the radius,
-    at least ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies
-    within ``closed_top_tolerance`` of the rim (the near wall's 99th-percentile height, at
-    most the top: a can's pull ring or flying pixels rise above its lid) (a can, box or
-    block); a short object with one
-    and no bottle evidence is other. A would-be cup is also other when wide and short (radius
-    above ``bowl_min_radius`` and height below ``bowl_height_ratio`` x the diameter: a bowl),
-    when its camera-facing wall fits two straight lines (a box's faces) with an RMS distance
-    below ``straight_wall_ratio`` x that of the circle, the circle's being above
-    ``straight_wall_min_rms``, or when seen from ``inside_min_elevation_deg`` or more above
-    with its far top in view it shows no inside (fewer than ``closed_top_min_points``, or a
-    fifth, of the points on its far half below the rim: a can's lid, or a box whose top
-    returned no depth), and from lower when it shows no inside and the full-resolution
-    depth over its top (:meth:`_top_disc`: the strided cloud loses a top seen at a low
-    angle with the edges) is a lid, or meets fewer than ``opening_min_points`` rays passing
-    over the rim into an opening while more of it is hidden by something nearer (or out of
-    the image) than returns no depth (a top blanked by clear plastic, its own or in front,
-    stays a cup). On cluttered seeds 0-399 the objects whose top was hidden by something
-    nearer were five cans and a fruit, and one tumbler. Either way, one whose top returned no
-    depth through a clear object in front (:meth:`_blanked_top`) and whose top quarter is as
-    wide as its wall is a cup after all: nothing of its top was seen. A short object called
-    other for anything but its width is a cup when it carries a handle on its side
-    (:meth:`_handle`): a mug filled near its rim shows a top as closed as a can's.
+    The shape rules. A bottle: at least ``bottle_min_height`` tall, or a neck (the top quarter's
+    90th-percentile distance from the axis below ``neck_ratio`` x the radius), or a gap of at
+    least ``bottle_gap`` with no points in the height profile under something narrow (below
+    ``gap_top_ratio`` x the radius: a cap, not a clear cup's rim). A tall object with no neck
+    and no gap, or a gap under a wide closed top (a lid over a band that returned no depth), is
+    other when its top ``top_band`` is as wide as the body (75th percentile of distances from
+    the axis at least ``wide_top_ratio`` x the radius or, if larger, x the median over 2 cm
+    slices below of the same percentile: a can stack or canister; a partly seen wall fits a
+    circle narrower than its points), and a tall object with no neck, cap or gap is other when
+    its camera-facing wall fits two straight lines (as for cups, below) over at least
+    ``tall_face_min_width`` (a box standing on end; a narrower arc is nearly straight: a
+    bottle's sliver past a nearer object), unless it narrows to a cap in its top ``cap_band``
+    (:meth:`_narrow_top`: a flat-sided bottle turned corner-on). A closed top: of the points
+    inside the rim (nearer the axis than ``closed_top_inner`` x the radius, at least
+    ``closed_top_min_points``), a share of at least ``closed_top_fraction`` lies within
+    ``closed_top_tolerance`` of the rim (the near wall's 99th-percentile height, at most the
+    top: a can's pull ring or flying pixels rise above its lid) (a can, box or block); a short
+    object with one and no bottle evidence is other. A would-be cup is also other when wide and
+    short (radius above ``bowl_min_radius`` and height below ``bowl_height_ratio`` x the
+    diameter: a bowl), when its camera-facing wall fits two straight lines (a box's faces) with
+    an RMS distance below ``straight_wall_ratio`` x that of the circle, the circle's being above
+    ``straight_wall_min_rms``, or when seen from ``inside_min_elevation_deg`` or more above with
+    its far top in view it shows no inside (fewer than ``closed_top_min_points``, or a fifth, of
+    the points on its far half below the rim: a can's lid, or a box whose top returned no
+    depth), and from lower when it shows no inside and the full-resolution depth over its top
+    (:meth:`_top_disc`: the strided cloud loses a top seen at a low angle with the edges) is a
+    lid, or meets fewer than ``opening_min_points`` rays passing over the rim into an opening
+    while more of it is hidden by something nearer (or out of the image) than returns no depth
+    (a top blanked by clear plastic, its own or in front, stays a cup). On cluttered seeds 0-399
+    the objects whose top was hidden by something nearer were five cans and a fruit, and one
+    tumbler. Either way, one whose top returned no depth through a clear object in front
+    (:meth:`_blanked_top`) and whose top quarter is as wide as its wall is a cup after all:
+    nothing of its top was seen. A short object called other for anything but its width is a cup
+    when it carries a handle on its side (:meth:`_handle`): a mug filled near its rim shows a
+    top as closed as a can's.
 
     A bottle's centre and radius are its body's (:meth:`_bottle_body`): the wall circle is
     fitted again below ``body_fit_fraction`` of its height when the whole cluster's circle is
@@ -1518,7 +1519,8 @@ class GeometricDetector:
         return center, self.bottle_prior_radius, np.zeros(len(uw)), np.ones(len(uw), dtype=bool)
 
     def _narrow_top(self, uw: Array, h: Array, top: float) -> bool:
-        """Whether a tall cluster without a round wall narrows to a bottle's cap: its top
+        """Whether a tall cluster without a round wall (or whose wall fits a box's two
+        straight faces) narrows to a bottle's cap: its top
         ``cap_band`` (at least 10 points) at least 1 cm and at most ``neck_ratio`` x as wide
         across the view (2nd to 98th percentile) as its body (below ``body_fit_fraction`` of
         its height, at least 20 points), the body no wider than 2 x ``upper_max_radius``.
