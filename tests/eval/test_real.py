@@ -162,6 +162,23 @@ def test_posecnn_scoring_counts_other_as_no_call() -> None:
     assert summary["bottle_recall"] == "1/1" and summary["bottle_precision"] == "1/2"
     assert summary["cup_recall"] == "0/1" and summary["cup_precision"] == "0/0"
     assert summary["distractor_calls"] == {}  # the bowl was not called bottle or cup
+    assert summary["objects_reported"] == "3/3"  # the bowl as an obstacle counts
+
+
+def test_posecnn_scoring_counts_each_reference_object_reported_once() -> None:
+    """Two detections on the pitcher count it once; the clamp nobody matched is not
+    reported; a detection matched to no reference box adds nothing."""
+    from armvision.eval.real_posecnn import _score
+
+    frames = [
+        {
+            "frame": "f2",
+            "refs": [("019_pitcher_base", "other"), ("052_extra_large_clamp", "other")],
+            "pairs": [(0, "other"), (0, "bottle"), (-1, "other")],
+        },
+        {"frame": "f3", "refs": [("025_mug", "cup")], "pairs": [(0, "cup")]},
+    ]
+    assert _score(frames)["objects_reported"] == "2/3"
 
 
 @pytest.mark.skipif(not (REAL / "posecnn_ycb_demo").is_dir(), reason="no real data here")

@@ -127,6 +127,8 @@ def _posecnn_lines(part: dict[str, Any]) -> list[str]:
         f"  bottle recall {s['bottle_recall']}, precision {s['bottle_precision']};"
         f" cup recall {s['cup_recall']}, precision {s['cup_precision']}"
         f" ({s['frames_scored']} frames scored)",
+        f"  reference objects reported with any label (other: an obstacle):"
+        f" {s['objects_reported']}",
         "  distractors called bottle / cup:",
     ]
     for name, calls in s["distractor_calls"].items():
