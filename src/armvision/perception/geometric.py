@@ -724,15 +724,16 @@ class GeometricDetector:
         across: a circle about the middle of its points' 2nd-98th percentile extent along
         their principal axes, the longer extent its diameter. Wider ones are what stands
         beyond the table (a wall, a chair), not on it; narrower than the smallest radius's
-        diameter, slivers of objects hidden behind nearer ones (four cups on cached cluttered
-        seeds 0-1299: an obstacle that thin says nothing, and they would count as cups called
-        other), also not; nor one standing less than a quarter of its width high (a cloth's
-        sweep up to the backdrop on ClearGrasp's frame 153: 46 cm wide, 4 cm high). On
-        PoseCNN's YCB frame 2 a pitcher with a banana and a gelatin box against its foot made
-        one cluster 33 cm long whose circle was 14 cm in radius: none of the three was
-        reported, not even as something to keep clear of. Its handle and spout fit no circle
-        either, so the cluster is not taken apart. Returns each one's fit and its points
-        (indices into ``uw``); its score is its support, as a flat face's."""
+        diameter, slivers of objects hidden behind nearer ones (all 22 such clusters on
+        cached cluttered seeds 0-1299: an obstacle that thin says nothing, and those on cups
+        would count as cups called other), also not; nor one standing less than a quarter of
+        its width high (a cloth's sweep up to the backdrop on ClearGrasp's frame 153: 46 cm
+        wide, 4 cm high). On PoseCNN's YCB frame 2 a pitcher with a banana and a gelatin box
+        against its foot made one cluster 33 cm long whose circle was 14 cm in radius: none
+        of the three was reported, not even as something to keep clear of. Its handle and
+        spout fit no circle either, so the cluster is not taken apart. Returns each one's
+        fit and its points (indices into ``uw``); its score is its support, as a flat
+        face's."""
         out: list[tuple[_Fit, NDArray[np.intp]]] = []
         for members in shapeless:
             top = self._top(h[members])
