@@ -141,8 +141,8 @@ class TiltedBench:
                     p = at(t)
                     h = p @ self.up
                     hit(t, (np.abs(p @ along) <= 0.5 * extent) & (h >= 0.0) & (h <= height))
-            lid = at((height - self.height) / self.along)
             t_lid = (height - self.height) / self.along
+            lid = at(t_lid)
             hit(
                 t_lid,
                 (np.abs(lid @ front) <= 0.5 * depth_) & (np.abs(lid @ lateral) <= 0.5 * width),

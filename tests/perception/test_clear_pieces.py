@@ -101,9 +101,10 @@ def _cup_with_liquid(level: float, wall_missing: float, behind: float = 0.3) -> 
 def test_a_clear_cup_seen_by_its_liquid_is_as_tall_as_its_clear_wall(
     level: float, behind: float
 ) -> None:
-    """Liquid 4.5 cm deep in the 10 cm cup, or 2.5 cm (lower than any object the detector
-    reports, ``min_object_height``; its wall's depth wherever it is not missing, or its
-    pieces are too few to judge): the pieces stand lower than any cup, but the wall above
+    """Liquid 4.5 cm deep in the 10 cm cup, or 2.5 cm: lower than ``min_object_height``, the
+    lowest object the detector reports (there the liquid returns its depth wherever it is
+    not missing: with the table behind on 30 %, too few pieces are left to judge). The
+    pieces stand lower than any cup, but the wall above
     returns no depth over half of it, so they are a cup whose top is where that stops
     (overshooting by up to the inside seen over the rim, never short of the liquid). With
     the wall above returning the table behind, the low pieces are not a cup."""
