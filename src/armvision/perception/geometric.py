@@ -739,11 +739,7 @@ class GeometricDetector:
             top = self._top(h[members])
             if len(members) < self.min_points or top < self.min_object_height:
                 continue
-            mid = uw[members].mean(axis=0)
-            q = uw[members] - mid
-            _, axes = np.linalg.eigh(q.T @ q)
-            along = q @ axes
-            lo, hi = np.percentile(along, 2.0, axis=0), np.percentile(along, 98.0, axis=0)
+            mid, axes, lo, hi = _principal_extent(uw[members])
             width = float((hi - lo).max())
             if not 2.0 * self.radius_range[0] <= width <= self.shapeless_max_width:
                 continue
@@ -1548,17 +1544,13 @@ class GeometricDetector:
         that width behind the middle of the seen face; None when wider than twice the
         largest radius or narrower than ``min_radius`` (the smallest radius by default).
         Residuals are zero and every point is "wall" (score from support)."""
-        mid = uw.mean(axis=0)
-        q = uw - mid
-        _, vecs = np.linalg.eigh(q.T @ q)
-        along = q @ vecs[:, 1]
-        lo, hi = np.percentile(along, [2.0, 98.0])
-        radius = 0.5 * float(hi - lo)
+        mid, axes, lo, hi = _principal_extent(uw)
+        radius = 0.5 * float(hi[1] - lo[1])
         low = self.radius_range[0] if min_radius is None else min_radius
         if not low <= radius <= 2.0 * self.radius_range[1]:
             return None
         away = mid / max(math.hypot(*mid), 1e-9)
-        center = mid + vecs[:, 1] * 0.5 * float(hi + lo) + radius * away
+        center = mid + axes[:, 1] * 0.5 * float(hi[1] + lo[1]) + radius * away
         return center, radius, np.zeros(len(uw)), np.ones(len(uw), dtype=bool)
 
     def _wall_circle(self, uw: Array, sigma: float) -> _Circle | None:
@@ -2027,6 +2019,17 @@ def _on_all(uw: Array, subset: NDArray[np.bool_], fit: _Circle) -> _Circle:
     return fit[0], fit[1], _radial(uw, fit[0]) - fit[1], wall
 
 
+def _principal_extent(uw: Array) -> tuple[Array, Array, Array, Array]:
+    """Points (N, 2) along their principal axes: their mean, the axes (columns, the major
+    one last), and the 2nd and 98th percentiles of the points' coordinates along each
+    (2,) (a few stray points do not widen it)."""
+    mid = uw.mean(axis=0)
+    q = uw - mid
+    _, axes = np.linalg.eigh(q.T @ q)
+    along = np.column_stack([q @ axes[:, 0], q @ axes[:, 1]])  # as each axis alone gives it
+    return mid, axes, np.percentile(along, 2.0, axis=0), np.percentile(along, 98.0, axis=0)
+
+
 def _boxes(uw: Array, clusters: Sequence[NDArray[np.intp]]) -> tuple[Array, Array]:
     """Every cluster's bounding box (lo, hi), (N, 2) each, all at once over their points laid
     end to end."""
@@ -2152,9 +2155,7 @@ def _wall_circle_kernel(
     to_x, to_y = -cx / norm, -cy / norm
     band, scale = max(4.0 * sigma, 0.006), 2.0 * sigma
     res = np.empty(n)
-    for k in range(n):
-        dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
-        res[k] = math.sqrt(dx * dx + dy * dy) - r
+    _circle_residuals(uw, cx, cy, r, res)
     wall = np.zeros(n, dtype=np.bool_)
     idx = np.empty(n, dtype=np.int64)
     for _ in range(2):
@@ -2169,10 +2170,16 @@ def _wall_circle_kernel(
             return False, cx, cy, r, res, wall
         fit_to = idx[: count : max(1, count // max_fit_points)]
         cx, cy, r = gauss_newton_circle(uw, fit_to, cx, cy, r, scale, iterations, tolerance)
-        for k in range(n):
-            dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
-            res[k] = math.sqrt(dx * dx + dy * dy) - r
+        _circle_residuals(uw, cx, cy, r, res)
     return True, cx, cy, r, res, wall
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _circle_residuals(uw: Array, cx: float, cy: float, r: float, out: Array) -> None:
+    """Each point's distance from the circle (cx, cy, r), into ``out``."""
+    for k in range(len(uw)):
+        dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
+        out[k] = math.sqrt(dx * dx + dy * dy) - r
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

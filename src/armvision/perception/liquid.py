@@ -516,7 +516,6 @@ def _rays_kernel(
     fl = axes[3, 0] * axes[1, 0] + axes[3, 1] * axes[1, 1] + axes[3, 2] * axes[1, 2]
     fu = axes[3, 0] * axes[2, 0] + axes[3, 1] * axes[2, 1] + axes[3, 2] * axes[2, 2]
     c0 = fa * fa + fl * fl
-    reach = _RAY_MISS * radius
     rows = len(range(y0, y1, stride))
     cols = len(range(x0, x1, stride))
     n = rows * cols
@@ -542,8 +541,6 @@ def _rays_kernel(
             z_near = half_b / qa
             off_a, off_l = z_near * da - fa, z_near * dl - fl
             # Every use of a ray asks for one passing near the axis: the rest are dropped.
-            if not off_a * off_a + off_l * off_l < reach * reach * (1 + _SQ_SLACK):
-                continue
             m = math.sqrt(off_a * off_a + off_l * off_l) / radius
             if not m < _RAY_MISS:
                 continue
