@@ -8,9 +8,10 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 from tests.perception.helpers import TiltedBench, detect_placed
 
-from armvision.camera.frames import depth_rms_error
+from armvision.camera.frames import RGBDFrame, depth_rms_error
 from armvision.config import Config
 from armvision.perception.detection import Detection
 from armvision.perception.geometric import GeometricDetector
@@ -248,30 +249,95 @@ def test_a_flat_sided_bottle_narrowing_to_its_cap_is_a_bottle_a_box_is_not() -> 
     assert found((0.15, 0.06, 0.17), (0.015, 0.21), 0.0).label == "other"
 
 
-def test_objects_standing_together_that_fit_no_shape_are_one_obstacle() -> None:
-    """A lidded cylinder 13 cm wide and 25 cm tall with a 25 cm long box against its foot
-    (as PoseCNN's YCB frame 2 has a pitcher with a banana and a gelatin box against it) fit
-    no round wall and no flat face: before, nothing was reported. Now one obstacle, other,
-    as tall as the cylinder, whose footprint holds both. A board 70 cm long and 20 cm high
-    on the same bench is wider than anything standing on a table (``shapeless_max_width``),
-    and a 40 cm box 5 cm high is the surface's own relief: nothing for either, while the
-    board at 45 cm is one obstacle."""
-    bench = TiltedBench()
+def _touching(bench: TiltedBench, first: float, second: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two feet on ``bench``'s table side by side across the view, ``first + second`` apart
+    (objects of those half-widths touching)."""
     foot = bench.table_point(300.0, 330.0)
     toward = -(foot - (foot @ bench.up) * bench.up)
     side = np.cross(bench.up, toward / np.linalg.norm(toward))
-    box_foot = foot + side * (0.065 + 0.125)
-    cylinder = bench.vessel(foot, 0.065, 0.25, lid=True)
-    box = bench.capped_box(box_foot, (0.25, 0.06, 0.06), (0.0, 0.06))
-    depth = np.where(cylinder > 0, cylinder, np.inf)
-    depth = np.minimum(depth, np.where(box > 0, box, np.inf))
-    found = GeometricDetector().detect(bench.frame(np.where(np.isfinite(depth), depth, 0.0)))
+    return foot, foot + side * (first + second)
+
+
+def _together(bench: TiltedBench, *depths: np.ndarray) -> RGBDFrame:
+    """One frame of the objects' depth images together (each ray's nearest hit)."""
+    near = np.full(depths[0].shape, np.inf)
+    for depth in depths:
+        near = np.minimum(near, np.where(depth > 0, depth, np.inf))
+    return bench.frame(np.where(np.isfinite(near), near, 0.0))
+
+
+def _off_foot(bench: TiltedBench, det: Detection, foot: np.ndarray) -> float:
+    """How far (m, along the table) ``det``'s foot is from ``foot``."""
+    off = det.center_cam - foot
+    return float(np.linalg.norm(off - (off @ bench.up) * bench.up))
+
+
+@pytest.mark.parametrize(
+    "pair",
+    [
+        # (label, radius, height, lid) of each: as on cluttered seed 223 a sports bottle
+        # against a canister, a cup against a can, two cups.
+        (("other", 0.065, 0.25, True), ("other", 0.0, 0.06, True)),
+        (("cup", 0.035, 0.09, False), ("other", 0.033, 0.12, True)),
+        (("cup", 0.035, 0.09, False), ("cup", 0.03, 0.10, False)),
+    ],
+)
+def test_a_container_standing_against_another_object_is_split_from_it(pair) -> None:
+    """Objects that touch share one cluster. A lidded cylinder 13 cm wide with a 25 cm box
+    against its foot was one obstacle; a cup against a can was one obstacle 12 cm wide;
+    two cups together were two obstacles 11-12 cm wide. Now each object is found on its own,
+    as it would be standing alone: a round one within 3 mm of its foot with its radius within
+    3 mm, and its height within 5 mm; the box (radius 0 here) as an obstacle of its height
+    whose footprint holds its foot. Nothing else is reported (the cups' inner far walls over
+    their rims, one cluster, are shared between them)."""
+    bench = TiltedBench()
+    (label_a, radius_a, height_a, lid_a), (label_b, radius_b, height_b, lid_b) = pair
+    foot_a, foot_b = _touching(bench, radius_a, radius_b or 0.125)
+    b = (
+        bench.vessel(foot_b, radius_b, height_b, lid=lid_b)
+        if radius_b
+        else bench.capped_box(foot_b, (0.25, 0.06, height_b), (0.0, height_b))
+    )
+    found = GeometricDetector().detect(
+        _together(bench, bench.vessel(foot_a, radius_a, height_a, lid=lid_a), b)
+    )
+    assert len(found) == 2, [(d.label, d.radius) for d in found]
+    for foot, label, radius, height in (
+        (foot_a, label_a, radius_a, height_a),
+        (foot_b, label_b, radius_b, height_b),
+    ):
+        det = min(found, key=lambda d: _off_foot(bench, d, foot))
+        assert det.label == label
+        assert abs(det.height - height) < 0.005
+        if radius:
+            assert _off_foot(bench, det, foot) < 0.003
+            assert abs(det.radius - radius) < 0.003
+        else:
+            assert _off_foot(bench, det, foot) < det.radius
+
+
+def test_objects_standing_together_that_fit_no_shape_are_one_obstacle() -> None:
+    """An 8 cm cube 12 cm tall with a 25 cm long box against it (as PoseCNN's YCB frame 2
+    has a pitcher with a banana and a gelatin box against it) fit no round wall and no flat
+    face, and no container stands among them to split off: before, nothing was reported.
+    Now one obstacle, other, as tall as the cube, whose footprint circle reaches into both
+    boxes' (within each one's half-diagonal of its foot). A board 70 cm long and 20 cm
+    high on the same bench is wider than anything standing on a table
+    (``shapeless_max_width``), and a 40 cm box 5 cm high is the surface's own relief:
+    nothing for either, while the board at 45 cm is one obstacle."""
+    bench = TiltedBench()
+    foot, box_foot = _touching(bench, 0.04, 0.125)
+    found = GeometricDetector().detect(
+        _together(
+            bench,
+            bench.capped_box(foot, (0.08, 0.08, 0.12), (0.0, 0.12)),
+            bench.capped_box(box_foot, (0.25, 0.06, 0.06), (0.0, 0.06)),
+        )
+    )
     assert [d.label for d in found] == ["other"]
-    assert abs(found[0].height - 0.25) < 0.005
-    center = found[0].center_cam
-    for point in (foot, box_foot):
-        off = center - point
-        assert float(np.linalg.norm(off - (off @ bench.up) * bench.up)) < found[0].radius
+    assert abs(found[0].height - 0.12) < 0.005
+    for point, reach in ((foot, math.hypot(0.04, 0.04)), (box_foot, math.hypot(0.125, 0.03))):
+        assert _off_foot(bench, found[0], point) < found[0].radius + reach
     for size, reported in (((0.7, 0.06, 0.2), 0), ((0.4, 0.06, 0.05), 0), ((0.45, 0.06, 0.2), 1)):
         board = bench.capped_box(foot, size, (0.0, size[2]))
         assert [d.label for d in GeometricDetector().detect(bench.frame(board))] == [
