@@ -136,6 +136,7 @@ def compile_kernels() -> None:
     compile_rays()
     uw = np.column_stack([np.cos(np.arange(12.0)), np.sin(np.arange(12.0)) + 1.0]) * 0.03
     _wall_circle_kernel(uw, 0.001, 600, 8, 2e-5)
+    _circle_inliers(uw, uw[:1] * 0.0, np.array([0.03]), 0.003)
     _depth_edges_kernel(
         np.ones((3, 3)), np.arange(9), np.float32(0.012), np.float32(0.08), np.float32(21.2)
     )
@@ -1584,9 +1585,10 @@ class GeometricDetector:
         point count: the same frame gives the same answer), from ``clear_min_radius`` to the
         largest radius (and with ``facing``, their centre farther from the camera than the
         points: a wall's front, not a circle touching the fronts of two walls side by side),
-        the points within 3 sigma (at least 3 mm) of the one that has the most; None when no
-        circle was drawn. Hand-written RANSAC: OpenCV and scikit-image fit circles only to all
-        the points given."""
+        the points within 3 sigma (at least 3 mm) of the one that has the most (counted on
+        at most ``max_fit_points`` of them, evenly strided); None when no circle was drawn.
+        Hand-written RANSAC: OpenCV and scikit-image fit circles only to all the points
+        given."""
         rng = np.random.default_rng(len(uw))
         picks = rng.integers(0, len(uw), size=(draws, 3))
         a, b, c = uw[picks[:, 0]], uw[picks[:, 1]], uw[picks[:, 2]]
@@ -1605,9 +1607,10 @@ class GeometricDetector:
         if not ok.any():
             return None
         centers = a[ok] + np.column_stack([ox[ok], oy[ok]])
-        dist = np.hypot(uw[None, :, 0] - centers[:, None, 0], uw[None, :, 1] - centers[:, None, 1])
-        inliers = np.abs(dist - radii[ok][:, None]) < max(3.0 * sigma, 0.003)
-        return inliers[int(np.argmax(inliers.sum(axis=1)))]
+        band = max(3.0 * sigma, 0.003)
+        some = np.ascontiguousarray(uw[:: max(1, len(uw) // self.max_fit_points)], dtype=float)
+        best = int(np.argmax(_circle_inliers(some, centers, radii[ok], band)))
+        return np.abs(_radial(uw, centers[best]) - radii[ok][best]) < band
 
     def _top(self, h: Array) -> float:
         """A cluster's height: its ``top_rank``-th highest point (above a few flying pixels)."""
@@ -2350,6 +2353,18 @@ def _circle_residuals(uw: Array, cx: float, cy: float, r: float, out: Array) -> 
     for k in range(len(uw)):
         dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
         out[k] = math.sqrt(dx * dx + dy * dy) - r
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _circle_inliers(uw: Array, centers: Array, radii: Array, band: float) -> NDArray[np.int64]:
+    """For each circle (``centers``, ``radii``), how many points lie within ``band`` of it."""
+    counts = np.zeros(len(radii), dtype=np.int64)
+    for j in range(len(radii)):
+        cx, cy, r = centers[j, 0], centers[j, 1], radii[j]
+        for k in range(len(uw)):
+            dx, dy = uw[k, 0] - cx, uw[k, 1] - cy
+            counts[j] += abs(math.sqrt(dx * dx + dy * dy) - r) < band
+    return counts
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
