@@ -331,6 +331,7 @@ class GeometricDetector:
         split_outside: float = 0.15,
         split_min_width: float = 0.035,
         split_draws: int = 128,
+        split_depth: int = 3,
         shapeless_max_width: float = 0.5,
         seed: int = 0,
     ) -> None:
@@ -367,6 +368,7 @@ class GeometricDetector:
         self.split_outside = float(split_outside)
         self.split_min_width = float(split_min_width)
         self.split_draws = int(split_draws)
+        self.split_depth = int(split_depth)
         self.shapeless_max_width = float(shapeless_max_width)
         self.min_height = float(min_height)
         self.max_height = float(max_height)
@@ -775,18 +777,21 @@ class GeometricDetector:
     ) -> tuple[list[NDArray[np.intp]], list[_Circle | None]]:
         """The clusters (largest first) and their wall circles (``fits``, None below
         ``min_points``), each of at least 2 x ``min_points`` that holds two objects touching
-        split in two (:meth:`_split`), both parts with their own circle; largest first again."""
+        split in two (:meth:`_split`), both parts with their own circle, and the rest split
+        again while it splits (``split_depth`` times at most: a row of objects standing
+        together); largest first again."""
         out: list[tuple[NDArray[np.intp], _Circle | None]] = []
         for members, fit in zip(clusters, fits):
-            parts = None
-            if len(members) >= 2 * self.min_points:
-                parts = self._split(uw[members], z[members], h[members], fit)
-            if parts is None:
-                out.append((members, fit))
-                continue
-            for part in parts:
-                sigma = self._sigma(z[members[part]])
-                out.append((members[part], self._wall_circle(uw[members[part]], sigma)))
+            for _ in range(self.split_depth):
+                parts = None
+                if len(members) >= 2 * self.min_points:
+                    parts = self._split(uw[members], z[members], h[members], fit)
+                if parts is None:
+                    break
+                vessel, rest = members[parts[0]], members[parts[1]]
+                out.append((vessel, self._wall_circle(uw[vessel], self._sigma(z[vessel]))))
+                members, fit = rest, self._wall_circle(uw[rest], self._sigma(z[rest]))
+            out.append((members, fit))
         out.sort(key=lambda item: len(item[0]), reverse=True)
         return [m for m, _ in out], [f for _, f in out]
 
@@ -805,12 +810,11 @@ class GeometricDetector:
         piece's narrow circle), with what lies inside it. The rest is another object when
         it has ``min_points`` points, stands ``min_object_height`` tall and spans
         ``split_min_width`` (a mug's handle reaches 3 cm out at most), when the container's
-        points fit a round wall of their own (a radius in range, not a box's two straight
-        lines, nine in ten wall points within 2.5 sigma, as a wall that fixes its circle in
-        :meth:`_reclaim_insides`: a box's corner fits a circle to four in five), and when,
-        if the rest has a round wall too, neither axis lies inside the other's circle
-        (patches of one clear object). Where the two meet, each point goes to the one it lies
-        deeper in. A rest holding two objects more is left as it is. On cached cluttered
+        points fit a round wall of their own (:meth:`_round_wall`), and when, if the rest
+        fits a circle too, neither axis lies inside the other's circle (patches of one clear
+        object). Where two round walls meet, each point goes to the one it lies deeper in
+        (then the container must keep ``min_points``). Splits again the rest
+        (:meth:`_split_touching`). On cached cluttered
         seeds 0-1299: 12 more containers found (9 of them on 650-1299), 3 false positives
         fewer, nothing lost. The rules came from seeds 0-349 and 73 and from hand-made depth
         images; 650-1299 was looked at only as totals and lists of changes."""
@@ -833,12 +837,7 @@ class GeometricDetector:
         if min(int(vessel.sum()), int(rest.sum())) < self.min_points:
             return None
         own = self._wall_circle(uw[vessel], sigma)
-        if own is None or not self._radius_ok(own[1]):
-            return None
-        _, _, res, wall = own
-        if self._straight_walls(uw[vessel][wall], res[wall]):
-            return None
-        if np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) < 0.9 * int(wall.sum()):
+        if own is None or not self._round_wall(uw[vessel], own, sigma):
             return None
         if self._top(h[rest]) < self.min_object_height:
             return None
@@ -850,11 +849,25 @@ class GeometricDetector:
             return vessel, rest
         if math.dist(own[0], other[0]) < max(own[1], other[1]):
             return None  # one's axis inside the other: patches of one object (clear plastic)
-        # Where the two meet, each point to the one it lies deeper in (signed distances
+        if not self._round_wall(uw[rest], other, sigma):
+            return vessel, rest  # a box's faces, no wall to meet the container's
+        # Where the two walls meet, each point to the one it lies deeper in (signed distances
         # from the walls, negative inside; the container's inside stays with it).
         off_own = _radial(uw, own[0]) - own[1]
         nearer = vessel & (off_own > -margin) & (_radial(uw, other[0]) - other[1] < off_own)
+        if np.count_nonzero(vessel & ~nearer) < self.min_points:
+            return None  # the container's points lie deeper in the other: no container
         return vessel & ~nearer, rest | nearer
+
+    def _round_wall(self, uw: Array, fit: _Circle, sigma: float) -> bool:
+        """Whether ``fit`` (a :meth:`_wall_circle` of ``uw``) is a round wall: a radius in
+        ``radius_range``, not a box's two straight lines (:meth:`_straight_walls`), and nine
+        in ten of its wall points within 2.5 sigma, as a wall that fixes its circle in
+        :meth:`_reclaim_insides` (a box's corner fits a circle to four in five)."""
+        _, radius, res, wall = fit
+        if not self._radius_ok(radius) or self._straight_walls(uw[wall], res[wall]):
+            return False
+        return bool(np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) >= 0.9 * int(wall.sum()))
 
     def _radius_ok(self, radius: float) -> bool:
         return self.radius_range[0] <= radius <= self.radius_range[1]
