@@ -813,11 +813,11 @@ class GeometricDetector:
         points fit a round wall of their own (:meth:`_round_wall`), and when, if the rest
         fits a circle too, neither axis lies inside the other's circle (patches of one clear
         object). Where two round walls meet, each point goes to the one it lies deeper in
-        (then the container must keep ``min_points``). Splits again the rest
-        (:meth:`_split_touching`). On cached cluttered
-        seeds 0-1299: 12 more containers found (9 of them on 650-1299), 3 false positives
-        fewer, nothing lost. The rules came from seeds 0-349 and 73 and from hand-made depth
-        images; 650-1299 was looked at only as totals and lists of changes."""
+        (then the container must keep ``min_points``). :meth:`_split_touching` tries the
+        rest again. On cached cluttered seeds 0-1299: 12 more containers found (9 of them on
+        650-1299), 3 false positives fewer, nothing lost. The rules came from seeds 0-349
+        and 73 and from hand-made depth images (``benchmarks/bench_touching.py``: random
+        touching pairs); 650-1299 was looked at only as totals and lists of changes."""
         sigma = self._sigma(z)
         margin = max(3.0 * sigma, self.contained_margin)
         if whole is not None:
