@@ -701,8 +701,7 @@ class GeometricDetector:
             support = int(wall.sum())
             if len(near) == 0 or support < self.full_support_points:
                 continue
-            sigma = self._sigma(z[clusters[j]])
-            if np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) < 0.9 * support:
+            if not _fixes_circle(res, wall, self._sigma(z[clusters[j]])):
                 continue
             hj = h[clusters[j]]
             rim = self._rim(uw[clusters[j]], hj, center, radius, self._top(hj))
@@ -861,13 +860,12 @@ class GeometricDetector:
 
     def _round_wall(self, uw: Array, fit: _Circle, sigma: float) -> bool:
         """Whether ``fit`` (a :meth:`_wall_circle` of ``uw``) is a round wall: a radius in
-        ``radius_range``, not a box's two straight lines (:meth:`_straight_walls`), and nine
-        in ten of its wall points within 2.5 sigma, as a wall that fixes its circle in
-        :meth:`_reclaim_insides` (a box's corner fits a circle to four in five)."""
+        ``radius_range``, not a box's two straight lines (:meth:`_straight_walls`), and its
+        wall fixing its circle (:func:`_fixes_circle`, as in :meth:`_reclaim_insides`)."""
         _, radius, res, wall = fit
         if not self._radius_ok(radius) or self._straight_walls(uw[wall], res[wall]):
             return False
-        return bool(np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) >= 0.9 * int(wall.sum()))
+        return _fixes_circle(res, wall, sigma)
 
     def _radius_ok(self, radius: float) -> bool:
         return self.radius_range[0] <= radius <= self.radius_range[1]
@@ -2195,6 +2193,13 @@ class GeometricDetector:
         split = _moments_line_ss(prefix[k]) + _moments_line_ss(prefix[n] - prefix[k])
         best = min(_line_ss(ordered), float(split.min(initial=np.inf)))
         return math.sqrt(best / n) < self.straight_wall_ratio * circle_rms
+
+
+def _fixes_circle(res: Array, wall: NDArray[np.bool_], sigma: float) -> bool:
+    """Whether a wall fixes its circle: nine in ten of its points (``wall``, of the
+    residuals ``res``) within 2.5 ``sigma`` of it (not a clear object's sparse front, nor a
+    box's corner, which fits a circle to four in five)."""
+    return bool(np.count_nonzero(np.abs(res[wall]) < 2.5 * sigma) >= 0.9 * int(wall.sum()))
 
 
 def _on_all(uw: Array, subset: NDArray[np.bool_], fit: _Circle) -> _Circle:
